@@ -1,0 +1,148 @@
+// The virtual rig: a physically based simulator of the dual-projector turntable scanner.
+// It is the firmware's sim backend, the source of ground truth for every accuracy test and the
+// workload of every benchmark. No OpenCV (it links into slscand); Eigen is allowed in the .cpp.
+//
+// Conventions are the project's (docs/conventions.md): mm, OpenCV camera frame, pixel centres
+// at integers, target_from_source poses, turntable frame z up along the axis, CCW angles.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "slproto/calibration.hpp"
+#include "slproto/pattern_plan.hpp"
+#include "slproto/result.hpp"
+
+namespace slrig {
+
+using slproto::ProjectorSide;
+using slproto::Vec3;
+
+struct SensorModel {
+  int bit_depth = 8;              // 8, 10 or 12; 10/12-bit frames are little-endian uint16
+  double full_well_electrons = 10000;
+  double read_noise_dn = 1.5;
+  double dark_level_dn = 0;       // black offset added before clipping
+  double white_level_dn = 200;    // white matte surface facing a full-white projector, no ambient
+  double exposure_us = 8333;      // one 8-bit DLP pattern
+  std::uint64_t seed = 1;
+  bool noise = true;              // false: an exact, noise-free render (for closed-form tests)
+};
+
+struct ProjectorModel {
+  slproto::PinholeModel intrinsics;  // DMD resolution, coding axis along width by default
+  slproto::RigidTransform cam_from_proj;
+  double gamma = 2.2;
+  double defocus_sigma_px = 0.7;     // Gaussian blur of the pattern, projector pixels
+  double brightness = 1.0;           // relative to the white level
+};
+
+struct TurntableModel {
+  slproto::RigidTransform cam_from_table;  // table frame at angle 0
+  double platform_radius_mm = 150;
+  double albedo = 0.5;                     // matte: it shows up in the cloud, on purpose
+  double angle_error_sigma_deg = 0;        // random error of each commanded move
+  double axis_wobble_deg = 0;              // tilt of the axis, varying with angle
+  double settle_time_ms = 200;
+};
+
+enum class ObjectKind : std::uint8_t { sphere, ballbar, plane, blade, teacup, checkerboard, mesh };
+
+// One object, placed in the turntable frame (table_from_object), rotating with the table
+// unless `on_turntable` is false (then `table_from_object` is read in the camera frame).
+struct SceneObject {
+  ObjectKind kind = ObjectKind::sphere;
+  std::string name;
+  slproto::RigidTransform table_from_object;
+  bool on_turntable = true;
+  double albedo = 0.8;
+  double specular = 0;          // strength of a specular lobe (0 = matte)
+  double specular_power = 50;
+  // Shape parameters (mm); which are used depends on kind:
+  double radius = 15;           // sphere
+  double radius_a = 15.0004, radius_b = 15.00075, centre_distance = 150.1164;  // ballbar (radii = diameters / 2)
+  double width = 100, height = 100;  // plane, blade span/chord, checkerboard extent
+  int squares_x = 9, squares_y = 7;  // checkerboard squares (inner corners = squares - 1)
+  double square_mm = 10;
+  std::string mesh_path;             // mesh: PLY/OBJ/STL
+};
+
+struct Scene {
+  std::string name;
+  slproto::PinholeModel camera;
+  SensorModel sensor;
+  std::array<ProjectorModel, 2> projectors;  // indexed by ProjectorSide
+  TurntableModel turntable;
+  std::vector<SceneObject> objects;
+  double ambient = 0.05;      // fraction of projector white
+  bool background_wall = true;
+  double wall_distance_mm = 400;  // behind the turntable axis, along the camera's view
+  slproto::PatternPlanConfig pattern_plan;
+  std::vector<double> view_angles_deg{0, 60, 120, 180, 240, 300};
+};
+
+enum class RigSize : std::uint8_t { full, small };  // 2464 x 2056, or 640 x 512 for unit tests
+
+// Scene presets: "ballbar", "plane", "sphere", "blade", "teacup", "calibration".
+slproto::Result<Scene> scene_preset(std::string_view name, RigSize size = RigSize::full);
+slproto::Result<Scene> load_scene(const std::string& path);  // JSON scene file
+
+// The exact calibration of a scene, in the host's calibration file format.
+slproto::RigCalibration ground_truth_calibration(const Scene& scene);
+
+// Per-pixel truth of one view, in the camera frame. NaN where the camera sees nothing.
+struct ViewGroundTruth {
+  int width = 0, height = 0;
+  double commanded_angle_deg = 0, actual_angle_deg = 0;
+  std::vector<float> points;     // 3 per pixel (x, y, z) mm, camera frame
+  std::vector<float> normals;    // 3 per pixel, unit, facing the camera
+  std::vector<std::int16_t> object_id;  // -1 nothing, 0 turntable, 1 wall, 2 + i scene object i
+  std::array<std::vector<float>, 2> projector_coord;  // coding-axis coordinate per side, NaN where unlit
+  std::array<std::vector<std::uint8_t>, 2> lit;       // 1 where that projector lights the point
+  slproto::RigidTransform cam_from_table;             // the table pose actually reached
+};
+
+// Renders the frames of one view. The constructor casts the camera rays once and tests
+// shadows once per projector; each frame is then look-ups plus the sensor model.
+class ViewRenderer {
+ public:
+  ViewRenderer(const Scene& scene, double commanded_angle_deg, int view_index);
+  ~ViewRenderer();
+  ViewRenderer(ViewRenderer&&) noexcept;
+  ViewRenderer& operator=(ViewRenderer&&) noexcept;
+
+  int width() const;
+  int height() const;
+  std::size_t frame_bytes() const;  // width * height * (1 or 2)
+
+  // The camera frame while projector `side` shows pattern `pattern_index` of `plan` (the
+  // scene's own plan when omitted). The other projector is dark. Noise is seeded by
+  // (scene seed, view, side, pattern), so a render is reproducible.
+  void render(ProjectorSide side, std::size_t pattern_index, std::span<std::uint8_t> out) const;
+  void render(ProjectorSide side, const slproto::PatternPlan& plan, std::size_t pattern_index,
+              std::span<std::uint8_t> out) const;
+  // Both projectors dark: ambient light only (what a camera calibration image sees).
+  void render_ambient(std::span<std::uint8_t> out) const;
+
+  const ViewGroundTruth& ground_truth() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// A dense sample of each object's true surface in the turntable frame, for point-to-surface
+// error: points and normals, `spacing_mm` apart.
+struct SurfaceSample {
+  std::vector<float> points;   // 3 per point
+  std::vector<float> normals;  // 3 per point
+  std::vector<std::int16_t> object_id;
+};
+SurfaceSample sample_object_surfaces(const Scene& scene, double spacing_mm);
+
+}  // namespace slrig

@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# Installs every Debian package that slscan's build, tests, benchmarks and demo need.
+# Idempotent: safe to run again; a second run installs nothing new.
+# Usage (as root on Debian 12): scripts/bootstrap.sh
+set -euo pipefail
+
+if [ "$(id -u)" -ne 0 ]; then
+  SUDO=sudo
+else
+  SUDO=
+fi
+
+# bookworm-backports carries libcamera >= 0.3 and libgpiod 2.x (the API that Raspberry Pi OS
+# and newer distributions use). It is added beside the machine's own Debian sources, on the
+# same mirror, and only the packages named below are taken from it.
+backports_list=/etc/apt/sources.list.d/slscan-bookworm-backports.sources
+if [ ! -f "$backports_list" ]; then
+  mirror=$(grep -hoE 'https?://[^ ]+/debian/?$' /etc/apt/sources.list.d/*.sources /etc/apt/sources.list 2>/dev/null | head -n1 || true)
+  mirror=${mirror:-http://deb.debian.org/debian}
+  $SUDO tee "$backports_list" >/dev/null <<SRC
+Types: deb
+URIs: ${mirror}
+Suites: bookworm-backports
+Components: main
+Signed-By: /usr/share/keyrings/debian-archive-keyring.gpg
+SRC
+fi
+
+packages=(
+  # toolchain
+  build-essential cmake ninja-build pkg-config git ccache
+  clang-14 libclang-rt-14-dev clang-format clang-tidy
+  # shared / protocol
+  libprotobuf-dev protobuf-compiler nlohmann-json3-dev
+  # host
+  libeigen3-dev libopencv-dev libopencv-contrib-dev libtbb-dev libnanoflann-dev libcli11-dev libspdlog-dev
+  # firmware hardware backends
+  libgpiod-dev gpiod libserialport-dev linux-libc-dev
+  # tests and benchmarks
+  googletest libgtest-dev libgmock-dev libbenchmark-dev
+  # cross builds
+  g++-aarch64-linux-gnu g++-arm-linux-gnueabihf qemu-user-static
+)
+
+stamp=/var/lib/slscan-bootstrap.stamp
+want="$(printf '%s\n' "${packages[@]}" | sort | tr '\n' ' ')"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && dpkg -s "${packages[@]}" >/dev/null 2>&1; then
+  echo "bootstrap: all packages present"
+else
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${packages[@]}"
+  # libcamera >= 0.3 exists only in backports for bookworm; the firmware builds without it.
+  $SUDO apt-get install -y -qq --no-install-recommends -t bookworm-backports libcamera-dev || \
+    echo "bootstrap: libcamera-dev from bookworm-backports not available; the libcamera backend will be skipped"
+  echo "$want" | $SUDO tee "$stamp" >/dev/null
+fi

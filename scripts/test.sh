@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Sets everything up on a fresh Debian 12 machine and runs every test:
+#   1. installs the Debian packages (scripts/bootstrap.sh, idempotent)
+#   2. dev build (warnings as errors) and the full CTest suite
+#   3. ASan + UBSan build and the same suite
+#   4. each libFuzzer target for a short fixed time on its committed corpus
+#   5. clang-format check of every source file
+# Usage: scripts/test.sh            (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 to shorten)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if [ "$(id -u)" -eq 0 ] || command -v sudo >/dev/null; then
+  scripts/bootstrap.sh
+fi
+
+jobs=$(nproc)
+step() { printf '\n==== %s\n' "$*"; }
+
+step "dev build + tests"
+cmake --preset dev >/dev/null
+cmake --build --preset dev -j "$jobs"
+ctest --preset dev
+
+if [ "${SLSCAN_SKIP_ASAN:-0}" != 1 ]; then
+  step "ASan + UBSan build + tests"
+  cmake --preset asan >/dev/null
+  cmake --build --preset asan -j "$jobs"
+  ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --preset asan
+fi
+
+if [ "${SLSCAN_SKIP_FUZZ:-0}" != 1 ] && [ -d tests/fuzz ]; then
+  step "fuzz smoke (libFuzzer, clang-14)"
+  scripts/fuzz.sh "${SLSCAN_FUZZ_SECONDS:-20}"
+fi
+
+step "clang-format"
+scripts/check-format.sh
+echo "all tests passed"
