@@ -35,7 +35,7 @@ packages=(
   # host
   libeigen3-dev libopencv-dev libopencv-contrib-dev libtbb-dev libnanoflann-dev libcli11-dev libspdlog-dev
   # firmware hardware backends
-  libgpiod-dev gpiod libserialport-dev linux-libc-dev
+  libgpiod-dev gpiod libserialport-dev linux-libc-dev libtomlplusplus-dev
   # tests and benchmarks
   googletest libgtest-dev libgmock-dev libbenchmark-dev
   # cross builds

@@ -12,8 +12,8 @@ namespace slscan::core {
 struct OrganizedCloud {
   int width = 0, height = 0;
   std::vector<Eigen::Vector3f> points;
-  std::vector<float> quality;        // decode modulation or fused confidence; 0 where invalid
-  std::vector<std::uint8_t> valid;   // 1 = the point is measured
+  std::vector<float> quality;       // decode modulation or fused confidence; 0 where invalid
+  std::vector<std::uint8_t> valid;  // 1 = the point is measured
 
   void resize(int w, int h);
   std::size_t size() const { return points.size(); }

@@ -1,0 +1,109 @@
+// Stage 1: decode one projector-view (the frames of one slproto::PatternPlan seen by the
+// camera) into the continuous projector coordinate along the plan's coding axis, per camera
+// pixel, with the phase modulation as quality and a mask of what could not be decoded.
+//
+// Conventions (docs/conventions.md): the wrapped phase is
+// phi = atan2(-sum I_n sin d_n, sum I_n cos d_n) in [0, 2 pi), d_n = 2 pi n / N; the order k
+// comes from the Gray bits; with the complementary bit, K2 is used where phi is in [0, pi/2)
+// and K2 - 1 where phi is in [3 pi/2, 2 pi); x_p = (phi + 2 pi order) P / (2 pi), so a camera
+// pixel that sees the centre of projector column 100 decodes to 100.0.
+//
+// Frames are copied into a per-pattern store as they stream in (the camera's buffer goes back
+// to the driver at once); finish() then decodes in tiles of rows over all planes at once,
+// threaded over row blocks. See docs/pipeline.md for why this beats accumulating per frame.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "slproto/pattern_plan.hpp"
+
+namespace slscan::core {
+
+struct DecodeOptions {
+  int bit_depth = 8;                 // 8 (uint8 frames) or 10/12/16 (uint16 frames)
+  float min_contrast_dn = 12.0f;     // white - black below this: too dark or too far to code
+  float min_modulation_dn = 6.0f;    // phase modulation B below this: unreliable phase
+  // A pixel at or above this level in any frame is saturated; <= 0 means the top code of
+  // bit_depth (255 for 8 bit).
+  int saturation_dn = 0;
+  int rows_per_task = 16;  // rows per TBB task: all planes of a block stay in cache
+
+  int saturation_level() const { return saturation_dn > 0 ? saturation_dn : (1 << bit_depth) - 1; }
+  // Throws std::invalid_argument naming the first impossible field.
+  void check() const;
+};
+
+// Why a pixel was masked (one reason per pixel, the first that applies in this order).
+enum class DecodeMask : std::uint8_t {
+  valid = 0,
+  saturated = 1,       // at the top code in some frame: its intensities are clipped
+  low_contrast = 2,    // white - black (or the phase peak-to-peak) below min_contrast_dn
+  low_modulation = 3,  // phase modulation below min_modulation_dn
+  out_of_range = 4,    // decoded coordinate outside the projector's coded extent
+};
+
+struct DecodeCounts {
+  std::size_t valid = 0, saturated = 0, low_contrast = 0, low_modulation = 0, out_of_range = 0;
+  std::size_t total() const { return valid + saturated + low_contrast + low_modulation + out_of_range; }
+};
+
+// Per camera pixel (row-major, index = v * width + u).
+struct DecodedView {
+  int width = 0, height = 0;
+  slproto::CodingAxis axis = slproto::CodingAxis::columns;
+  std::vector<float> coordinate;  // projector coordinate along the axis (px); NaN where masked
+  std::vector<float> quality;     // phase modulation B (DN), or Gray contrast without phase; 0 masked
+  std::vector<DecodeMask> mask;
+  DecodeCounts counts;
+};
+
+// Decodes the frames of one projector-view. Reusable: after finish(), reset() (or
+// finish() itself) readies it for the next view without reallocating.
+class ProjectorViewDecoder {
+ public:
+  // Throws std::invalid_argument if the plan can't be decoded (neither white/black nor phase
+  // steps to threshold the Gray bits against), the size is impossible or options fail check().
+  ProjectorViewDecoder(const slproto::PatternPlan& plan, int width, int height, const DecodeOptions& options = {});
+
+  int width() const { return width_; }
+  int height() const { return height_; }
+  const slproto::PatternPlan& plan() const { return plan_; }
+  const DecodeOptions& options() const { return options_; }
+
+  // Pattern `pattern_index` of the plan seen by the camera; stride in elements (pixels) per
+  // row, >= width. The 8-bit form needs bit_depth 8, the 16-bit form bit_depth > 8. Frames may
+  // come in any order; a repeated index replaces the earlier frame. Throws on misuse.
+  void add_frame(std::size_t pattern_index, const std::uint8_t* data, std::size_t stride);
+  void add_frame(std::size_t pattern_index, const std::uint16_t* data, std::size_t stride);
+
+  bool has_frame(std::size_t pattern_index) const { return present_.at(pattern_index) != 0; }
+  bool complete() const;
+
+  // Decodes; throws std::logic_error naming the missing pattern if a frame is missing.
+  DecodedView finish();
+  // Same, into an existing result whose buffers are reused.
+  void finish(DecodedView& out);
+  void reset();
+
+ private:
+  template <class Pixel>
+  void store_frame(std::size_t pattern_index, const Pixel* data, std::size_t stride);
+  template <class Pixel>
+  void decode_rows(int row_begin, int row_end, DecodedView& out, DecodeCounts& counts) const;
+
+  slproto::PatternPlan plan_;
+  int width_ = 0, height_ = 0;
+  DecodeOptions options_;
+  std::size_t bytes_per_pixel_ = 1;
+  std::vector<std::uint8_t> store_;  // one plane per pattern, width * height pixels each
+  std::vector<std::uint8_t> present_;
+  // Where each kind of pattern sits in the plan (-1 if absent), in decode order.
+  int white_ = -1, black_ = -1, complementary_ = -1;
+  std::vector<int> gray_;   // gray_[bit] = pattern index, bit 0 = most significant
+  std::vector<int> phase_;  // phase_[n] = pattern index of step n
+  std::vector<float> phase_cos_, phase_sin_;
+};
+
+}  // namespace slscan::core

@@ -1,0 +1,59 @@
+// PLY point clouds (binary little-endian by default, ASCII readable). Writes go to a temporary
+// file and are renamed when complete, so a failed run never leaves a half-written model.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "slscan/core/point_cloud.hpp"
+
+namespace slscan::io {
+
+// Any file problem: the message names the file and what was wrong (and where, for parsing).
+class IoError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// Every vertex property of a PLY file as a column of doubles, in file order; faces as index lists.
+struct PlyTable {
+  std::size_t vertex_count = 0;
+  std::vector<std::string> property_names;
+  std::vector<std::vector<double>> columns;  // columns[p][i] = property p of vertex i
+  std::vector<std::vector<std::uint32_t>> faces;
+  std::vector<std::string> comments;
+
+  // Index of a property by name, or -1.
+  int find(const std::string& name) const;
+  // The column of a required property; throws IoError naming the property if it is absent.
+  const std::vector<double>& column(const std::string& name) const;
+};
+
+PlyTable read_ply_table(const std::string& path);
+
+// Reads x, y, z and, when present, nx/ny/nz, confidence and view_id.
+core::PointCloud read_ply(const std::string& path);
+
+struct PlyWriteOptions {
+  bool binary = true;
+  std::vector<std::string> comments;
+};
+
+// Writes x, y, z (float) and the cloud's optional channels: nx, ny, nz (float),
+// confidence (float), view_id (ushort).
+void write_ply(const std::string& path, const core::PointCloud& cloud, const PlyWriteOptions& options = {});
+
+// Writes a triangle mesh: vertices (with normals when given) and faces.
+void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
+                    const std::vector<Eigen::Vector3f>& normals, const std::vector<Eigen::Vector3i>& triangles,
+                    const PlyWriteOptions& options = {});
+
+// Binary STL of a triangle mesh (facet normals computed from the triangles).
+void write_stl(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
+               const std::vector<Eigen::Vector3i>& triangles, const std::string& header = "slscan");
+
+// Writes bytes to path through a temporary file + rename; throws IoError.
+void write_file_atomically(const std::string& path, std::string_view bytes);
+
+}  // namespace slscan::io

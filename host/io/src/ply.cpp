@@ -1,0 +1,394 @@
+#include "slscan/io/ply.hpp"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <bit>
+#include <charconv>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "slproto/calibration.hpp"
+
+namespace slscan::io {
+
+namespace {
+
+enum class PlyType : std::uint8_t { i8, u8, i16, u16, i32, u32, f32, f64 };
+
+struct PlyProperty {
+  std::string name;
+  PlyType type = PlyType::f32;
+  bool is_list = false;
+  PlyType count_type = PlyType::u8;
+};
+
+struct PlyElement {
+  std::string name;
+  std::size_t count = 0;
+  std::vector<PlyProperty> properties;
+};
+
+std::size_t type_size(PlyType t) {
+  switch (t) {
+    case PlyType::i8:
+    case PlyType::u8:
+      return 1;
+    case PlyType::i16:
+    case PlyType::u16:
+      return 2;
+    case PlyType::i32:
+    case PlyType::u32:
+    case PlyType::f32:
+      return 4;
+    case PlyType::f64:
+      return 8;
+  }
+  return 0;
+}
+
+bool parse_type(const std::string& s, PlyType& t) {
+  static const std::pair<const char*, PlyType> names[] = {
+      {"char", PlyType::i8},   {"int8", PlyType::i8},     {"uchar", PlyType::u8},   {"uint8", PlyType::u8},
+      {"short", PlyType::i16}, {"int16", PlyType::i16},   {"ushort", PlyType::u16}, {"uint16", PlyType::u16},
+      {"int", PlyType::i32},   {"int32", PlyType::i32},   {"uint", PlyType::u32},   {"uint32", PlyType::u32},
+      {"float", PlyType::f32}, {"float32", PlyType::f32}, {"double", PlyType::f64}, {"float64", PlyType::f64}};
+  for (const auto& [name, type] : names)
+    if (s == name) {
+      t = type;
+      return true;
+    }
+  return false;
+}
+
+double read_binary(const char* p, PlyType t) {
+  switch (t) {
+    case PlyType::i8:
+      return static_cast<double>(*reinterpret_cast<const std::int8_t*>(p));
+    case PlyType::u8:
+      return static_cast<double>(*reinterpret_cast<const std::uint8_t*>(p));
+    case PlyType::i16: {
+      std::int16_t v;
+      std::memcpy(&v, p, 2);
+      return v;
+    }
+    case PlyType::u16: {
+      std::uint16_t v;
+      std::memcpy(&v, p, 2);
+      return v;
+    }
+    case PlyType::i32: {
+      std::int32_t v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case PlyType::u32: {
+      std::uint32_t v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case PlyType::f32: {
+      float v;
+      std::memcpy(&v, p, 4);
+      return v;
+    }
+    case PlyType::f64: {
+      double v;
+      std::memcpy(&v, p, 8);
+      return v;
+    }
+  }
+  return 0;
+}
+
+[[noreturn]] void fail(const std::string& path, const std::string& what) { throw IoError(path + ": " + what); }
+
+}  // namespace
+
+int PlyTable::find(const std::string& name) const {
+  for (std::size_t i = 0; i < property_names.size(); ++i)
+    if (property_names[i] == name) return static_cast<int>(i);
+  return -1;
+}
+
+const std::vector<double>& PlyTable::column(const std::string& name) const {
+  const int i = find(name);
+  if (i < 0) throw IoError("PLY has no vertex property '" + name + "'");
+  return columns[static_cast<std::size_t>(i)];
+}
+
+PlyTable read_ply_table(const std::string& path) {
+  static_assert(std::endian::native == std::endian::little, "binary PLY reading assumes a little-endian host");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail(path, std::string("cannot open (") + std::strerror(errno) + ")");
+  std::string line;
+  if (!std::getline(in, line) || line.rfind("ply", 0) != 0) fail(path, "not a PLY file (no 'ply' magic on line 1)");
+  std::string format;
+  std::vector<PlyElement> elements;
+  PlyTable table;
+  int line_no = 1;
+  bool header_done = false;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream words(line);
+    std::string keyword;
+    words >> keyword;
+    const std::string where = "header line " + std::to_string(line_no);
+    if (keyword == "format") {
+      std::string version;
+      words >> format >> version;
+      if (format != "ascii" && format != "binary_little_endian")
+        fail(path, where + ": format '" + format + "' is not supported (ascii or binary_little_endian)");
+    } else if (keyword == "comment" || keyword == "obj_info") {
+      table.comments.push_back(line.size() > keyword.size() + 1 ? line.substr(keyword.size() + 1) : "");
+    } else if (keyword == "element") {
+      PlyElement element;
+      long long count = -1;
+      words >> element.name >> count;
+      if (element.name.empty() || count < 0 || count > (1LL << 32))
+        fail(path, where + ": malformed element line '" + line + "'");
+      element.count = static_cast<std::size_t>(count);
+      elements.push_back(element);
+    } else if (keyword == "property") {
+      if (elements.empty()) fail(path, where + ": property before any element");
+      PlyProperty property;
+      std::string type;
+      words >> type;
+      if (type == "list") {
+        std::string count_type, item_type;
+        words >> count_type >> item_type >> property.name;
+        property.is_list = true;
+        if (!parse_type(count_type, property.count_type) || !parse_type(item_type, property.type))
+          fail(path, where + ": unknown list types in '" + line + "'");
+      } else {
+        words >> property.name;
+        if (!parse_type(type, property.type)) fail(path, where + ": unknown property type '" + type + "'");
+      }
+      if (property.name.empty()) fail(path, where + ": property without a name");
+      elements.back().properties.push_back(property);
+    } else if (keyword == "end_header") {
+      header_done = true;
+      break;
+    } else if (!keyword.empty()) {
+      fail(path, where + ": unknown keyword '" + keyword + "'");
+    }
+  }
+  if (!header_done) fail(path, "header has no end_header");
+  if (format.empty()) fail(path, "header has no format line");
+
+  for (const PlyElement& element : elements) {
+    const bool is_vertex = element.name == "vertex";
+    const bool is_face = element.name == "face";
+    if (is_vertex) {
+      table.vertex_count = element.count;
+      for (const auto& p : element.properties) {
+        if (p.is_list) fail(path, "vertex list properties are not supported ('" + p.name + "')");
+        table.property_names.push_back(p.name);
+        table.columns.emplace_back(element.count);
+      }
+    }
+    std::size_t fixed_size = 0;
+    for (const auto& p : element.properties) fixed_size += p.is_list ? 0 : type_size(p.type);
+    const bool all_fixed =
+        std::none_of(element.properties.begin(), element.properties.end(), [](const auto& p) { return p.is_list; });
+    std::vector<char> record(fixed_size);
+    for (std::size_t i = 0; i < element.count; ++i) {
+      const std::string where = element.name + " " + std::to_string(i);
+      if (format == "ascii") {
+        if (!std::getline(in, line))
+          fail(path, "file ends in " + where + " (expected " + std::to_string(element.count) + ")");
+        std::istringstream values(line);
+        for (std::size_t p = 0; p < element.properties.size(); ++p) {
+          const PlyProperty& prop = element.properties[p];
+          double v = 0;
+          if (!(values >> v)) fail(path, where + ": missing value for '" + prop.name + "'");
+          if (prop.is_list) {
+            std::vector<std::uint32_t> items(static_cast<std::size_t>(v));
+            for (auto& item : items) {
+              double x = 0;
+              if (!(values >> x)) fail(path, where + ": short list '" + prop.name + "'");
+              item = static_cast<std::uint32_t>(x);
+            }
+            if (is_face) table.faces.push_back(std::move(items));
+          } else if (is_vertex) {
+            table.columns[p][i] = v;
+          }
+        }
+      } else if (all_fixed) {
+        if (!in.read(record.data(), static_cast<std::streamsize>(fixed_size)))
+          fail(path, "file ends in " + where + " of " + std::to_string(element.count) + " (truncated)");
+        if (is_vertex) {
+          std::size_t offset = 0;
+          for (std::size_t p = 0; p < element.properties.size(); ++p) {
+            table.columns[p][i] = read_binary(record.data() + offset, element.properties[p].type);
+            offset += type_size(element.properties[p].type);
+          }
+        }
+      } else {
+        for (const PlyProperty& prop : element.properties) {
+          char buffer[8];
+          const std::size_t size = type_size(prop.is_list ? prop.count_type : prop.type);
+          if (!in.read(buffer, static_cast<std::streamsize>(size)))
+            fail(path, "file ends in " + where + " (truncated)");
+          if (!prop.is_list) continue;
+          const double count = read_binary(buffer, prop.count_type);
+          if (count < 0 || count > 1024)
+            fail(path, where + ": list of " + std::to_string(count) + " items is implausible");
+          std::vector<std::uint32_t> items(static_cast<std::size_t>(count));
+          const std::size_t item_size = type_size(prop.type);
+          for (auto& item : items) {
+            if (!in.read(buffer, static_cast<std::streamsize>(item_size)))
+              fail(path, "file ends in " + where + " (truncated)");
+            item = static_cast<std::uint32_t>(read_binary(buffer, prop.type));
+          }
+          if (is_face) table.faces.push_back(std::move(items));
+        }
+      }
+    }
+  }
+  return table;
+}
+
+core::PointCloud read_ply(const std::string& path) {
+  const PlyTable table = read_ply_table(path);
+  core::PointCloud cloud;
+  const int ix = table.find("x"), iy = table.find("y"), iz = table.find("z");
+  if (ix < 0 || iy < 0 || iz < 0) fail(path, "vertices lack x, y or z");
+  const std::size_t n = table.vertex_count;
+  cloud.points.resize(n);
+  for (std::size_t i = 0; i < n; ++i)
+    cloud.points[i] = {static_cast<float>(table.columns[ix][i]), static_cast<float>(table.columns[iy][i]),
+                       static_cast<float>(table.columns[iz][i])};
+  const int inx = table.find("nx"), iny = table.find("ny"), inz = table.find("nz");
+  if (inx >= 0 && iny >= 0 && inz >= 0) {
+    cloud.normals.resize(n);
+    for (std::size_t i = 0; i < n; ++i)
+      cloud.normals[i] = {static_cast<float>(table.columns[inx][i]), static_cast<float>(table.columns[iny][i]),
+                          static_cast<float>(table.columns[inz][i])};
+  }
+  if (const int ic = table.find("confidence"); ic >= 0) {
+    cloud.confidence.resize(n);
+    for (std::size_t i = 0; i < n; ++i) cloud.confidence[i] = static_cast<float>(table.columns[ic][i]);
+  }
+  if (const int iv = table.find("view_id"); iv >= 0) {
+    cloud.view_id.resize(n);
+    for (std::size_t i = 0; i < n; ++i) cloud.view_id[i] = static_cast<std::uint16_t>(table.columns[iv][i]);
+  }
+  return cloud;
+}
+
+namespace {
+
+template <class T>
+void put(std::string& out, T value) {
+  char bytes[sizeof(T)];
+  std::memcpy(bytes, &value, sizeof(T));
+  out.append(bytes, sizeof(T));
+}
+
+void put_ascii(std::string& out, double value) {
+  char buffer[64];
+  auto [end, ec] = std::to_chars(buffer, buffer + sizeof buffer, value);
+  out.append(buffer, static_cast<std::size_t>(end - buffer));
+}
+
+std::string header(const std::string& format, const std::vector<std::string>& comments) {
+  std::string h = "ply\nformat " + format + " 1.0\n";
+  for (const auto& c : comments) h += "comment " + c + "\n";
+  return h;
+}
+
+}  // namespace
+
+void write_ply(const std::string& path, const core::PointCloud& cloud, const PlyWriteOptions& options) {
+  const std::size_t n = cloud.size();
+  const bool normals = cloud.normals.size() == n && n > 0;
+  const bool confidence = cloud.confidence.size() == n && n > 0;
+  const bool view = cloud.view_id.size() == n && n > 0;
+  std::string out = header(options.binary ? "binary_little_endian" : "ascii", options.comments);
+  out += "element vertex " + std::to_string(n) + "\nproperty float x\nproperty float y\nproperty float z\n";
+  if (normals) out += "property float nx\nproperty float ny\nproperty float nz\n";
+  if (confidence) out += "property float confidence\n";
+  if (view) out += "property ushort view_id\n";
+  out += "end_header\n";
+  out.reserve(out.size() + n * 32);
+  for (std::size_t i = 0; i < n; ++i) {
+    float values[7] = {cloud.points[i].x(), cloud.points[i].y(), cloud.points[i].z(), 0, 0, 0, 0};
+    int count = 3;
+    if (normals) {
+      values[3] = cloud.normals[i].x();
+      values[4] = cloud.normals[i].y();
+      values[5] = cloud.normals[i].z();
+      count = 6;
+    }
+    if (confidence) values[count++] = cloud.confidence[i];
+    if (options.binary) {
+      for (int k = 0; k < count; ++k) put(out, values[k]);
+      if (view) put(out, cloud.view_id[i]);
+    } else {
+      for (int k = 0; k < count; ++k) {
+        if (k) out += ' ';
+        put_ascii(out, values[k]);
+      }
+      if (view) out += ' ' + std::to_string(cloud.view_id[i]);
+      out += '\n';
+    }
+  }
+  write_file_atomically(path, out);
+}
+
+void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
+                    const std::vector<Eigen::Vector3f>& normals, const std::vector<Eigen::Vector3i>& triangles,
+                    const PlyWriteOptions& options) {
+  const bool with_normals = !normals.empty() && normals.size() == vertices.size();
+  std::string out = header("binary_little_endian", options.comments);
+  out +=
+      "element vertex " + std::to_string(vertices.size()) + "\nproperty float x\nproperty float y\nproperty float z\n";
+  if (with_normals) out += "property float nx\nproperty float ny\nproperty float nz\n";
+  out += "element face " + std::to_string(triangles.size()) + "\nproperty list uchar int vertex_indices\nend_header\n";
+  for (std::size_t i = 0; i < vertices.size(); ++i) {
+    for (int k = 0; k < 3; ++k) put(out, vertices[i][k]);
+    if (with_normals)
+      for (int k = 0; k < 3; ++k) put(out, normals[i][k]);
+  }
+  for (const auto& t : triangles) {
+    put(out, std::uint8_t{3});
+    for (int k = 0; k < 3; ++k) {
+      if (t[k] < 0 || static_cast<std::size_t>(t[k]) >= vertices.size())
+        throw IoError(path + ": triangle refers to vertex " + std::to_string(t[k]) + " of " +
+                      std::to_string(vertices.size()));
+      put(out, static_cast<std::int32_t>(t[k]));
+    }
+  }
+  write_file_atomically(path, out);
+}
+
+void write_stl(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
+               const std::vector<Eigen::Vector3i>& triangles, const std::string& header_text) {
+  std::string out(80, '\0');
+  std::memcpy(out.data(), header_text.data(), std::min<std::size_t>(79, header_text.size()));
+  put(out, static_cast<std::uint32_t>(triangles.size()));
+  for (const auto& t : triangles) {
+    for (int k = 0; k < 3; ++k)
+      if (t[k] < 0 || static_cast<std::size_t>(t[k]) >= vertices.size())
+        throw IoError(path + ": triangle refers to vertex " + std::to_string(t[k]) + " of " +
+                      std::to_string(vertices.size()));
+    const Eigen::Vector3f& a = vertices[static_cast<std::size_t>(t[0])];
+    const Eigen::Vector3f& b = vertices[static_cast<std::size_t>(t[1])];
+    const Eigen::Vector3f& c = vertices[static_cast<std::size_t>(t[2])];
+    Eigen::Vector3f n = (b - a).cross(c - a);
+    const float len = n.norm();
+    if (len > 0) n /= len;
+    for (const Eigen::Vector3f* v : {static_cast<const Eigen::Vector3f*>(&n), &a, &b, &c})
+      for (int k = 0; k < 3; ++k) put(out, (*v)[k]);
+    put(out, std::uint16_t{0});
+  }
+  write_file_atomically(path, out);
+}
+
+void write_file_atomically(const std::string& path, std::string_view bytes) {
+  if (auto status = slproto::write_file_atomically(path, bytes); !status) throw IoError(status.error().message);
+}
+
+}  // namespace slscan::io
