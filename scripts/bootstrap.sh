@@ -36,6 +36,8 @@ packages=(
   libeigen3-dev libopencv-dev libopencv-contrib-dev libtbb-dev libnanoflann-dev libcli11-dev libspdlog-dev
   # firmware hardware backends
   libgpiod-dev gpiod libserialport-dev linux-libc-dev libtomlplusplus-dev
+  # virtual rig CLI (slrig-render writes PNG frames)
+  libpng-dev
   # tests and benchmarks
   googletest libgtest-dev libgmock-dev libbenchmark-dev
   # cross builds

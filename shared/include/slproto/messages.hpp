@@ -83,7 +83,9 @@ template <class T>
 inline constexpr MessageType message_type_v = message_type_of<T>::value;
 
 template <class T>
-concept ControlMessage = requires { message_type_of<T>::value; };
+concept ControlMessage = requires {
+  message_type_of<T>::value;
+};
 
 MessageType type_of(const Body& body) noexcept;
 const google::protobuf::MessageLite& as_message_lite(const Body& body) noexcept;

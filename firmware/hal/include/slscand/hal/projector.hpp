@@ -33,8 +33,8 @@ class DlpProjector {
 
   // Runs the pattern sequence from its first pattern (the next advance() shows pattern 0).
   Status start();
-  // Rising edge on TRIG_IN_1: the next pattern. Returns the time the edge was driven, read
-  // right after the line changed.
+  // Rising edge on TRIG_IN_1: the next pattern. Returns the time read just before the line was
+  // driven (the edge's earliest possible time).
   Result<Nanos> advance();
   // The projector's acknowledgement: the next TRIG_OUT_1 rising edge (exposure start), or
   // Errc::hardware naming the projector when none comes within `timeout_ns`.

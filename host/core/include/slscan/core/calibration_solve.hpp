@@ -24,9 +24,9 @@ struct LensModelOptions {
 
 struct DeviceCalibration {
   slproto::PinholeModel model;
-  double rms_px = 0;                                   // over every corner of every view
-  std::vector<double> view_rms_px;                     // one per input view
-  std::vector<slproto::RigidTransform> from_target;    // device_from_target, one per input view
+  double rms_px = 0;                                 // over every corner of every view
+  std::vector<double> view_rms_px;                   // one per input view
+  std::vector<slproto::RigidTransform> from_target;  // device_from_target, one per input view
 };
 
 // Intrinsics and distortion of a camera from >= `min_views` views of the planar target
@@ -35,9 +35,9 @@ DeviceCalibration calibrate_camera(const CheckerboardTarget& target, const std::
                                    int height, const LensModelOptions& lens = {}, int min_views = 3);
 
 struct ProjectorSolve {
-  slproto::ProjectorCalibration calibration;  // intrinsics, cam_from_proj, reprojection RMS
-  double camera_rms_px = 0;                   // camera residual of the joint refinement
-  std::vector<double> view_rms_px;            // projector residual per view
+  slproto::ProjectorCalibration calibration;             // intrinsics, cam_from_proj, reprojection RMS
+  double camera_rms_px = 0;                              // camera residual of the joint refinement
+  std::vector<double> view_rms_px;                       // projector residual per view
   std::vector<slproto::RigidTransform> cam_from_target;  // refined target poses, one per view
 };
 
@@ -59,13 +59,13 @@ struct TurntableView {
 
 struct TurntableSolve {
   slproto::TurntableCalibration calibration;
-  std::vector<double> measured_angle_deg;      // per view, relative to the first view
-  std::vector<double> step_deg;                // per view, angle turned since the previous view (0 for the first)
-  std::vector<double> pose_residual_mm;        // per view: RMS 3D distance, own pose vs fitted rotation
-  std::vector<double> reprojection_rms_px;     // per view, of the fitted rotation
+  std::vector<double> measured_angle_deg;   // per view, relative to the first view
+  std::vector<double> step_deg;             // per view, angle turned since the previous view (0 for the first)
+  std::vector<double> pose_residual_mm;     // per view: RMS 3D distance, own pose vs fitted rotation
+  std::vector<double> reprojection_rms_px;  // per view, of the fitted rotation
   double rms_px = 0;
   double target_tilt_deg = 0;  // angle between the target's normal and the axis (target not flat?)
-  std::vector<bool> flipped;   // per view: corner order reversed to resolve a symmetric board
+  std::vector<bool> flipped;   // per view: corner order reversed (listed from the other end)
 };
 
 // Fits the rotation axis (direction and point), every view's actual angle and the target's

@@ -1,0 +1,79 @@
+// slscand's server: one host at a time over slproto/TCP. A connection is a hello exchange, then
+// any number of scans: ScanRequest -> Progress / frames (each with its timing events) ->
+// ScanDone, with Error before ScanDone when a scan fails. Abort, a host that disconnects and
+// every device fault end the scan through the sequencer's one clean-up path, and the daemon
+// waits for the next scan (or the next host).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "slproto/transport.hpp"
+#include "slscand/hal/backends.hpp"
+#include "slscand/sequencer/sequencer.hpp"
+
+namespace slscand {
+
+struct DaemonOptions {
+  std::string bind_address;          // "" = the board's
+  int port = -1;                     // -1 = the board's, 0 = any free port
+  std::string timing_log_dir;        // "" = do not write timing logs on the board
+  std::string auth_token;            // "" = none required
+  std::size_t queue_capacity = 8;    // frames between the sequencer and the streamer
+  bool realtime = true;              // SCHED_FIFO + mlockall if the board allows it
+  slproto::ConnectionOptions connection;
+};
+
+struct DaemonStats {
+  std::uint64_t connections = 0;
+  std::uint64_t scans_started = 0;
+  std::uint64_t scans_done = 0;
+  std::uint64_t scans_aborted = 0;
+  std::uint64_t scans_failed = 0;
+  std::uint64_t scans_refused = 0;
+  std::string last_error;
+};
+
+class Daemon {
+ public:
+  static slproto::Result<std::unique_ptr<Daemon>> create(hal::BoardConfig board, hal::BoardDevices devices,
+                                                         DaemonOptions options);
+  ~Daemon();
+  Daemon(const Daemon&) = delete;
+  Daemon& operator=(const Daemon&) = delete;
+
+  std::uint16_t port() const { return server_.port(); }
+  // Serves hosts one after the other until stop() is called (from any thread).
+  void serve();
+  void stop();
+  bool busy() const { return scanning_.load(); }
+  DaemonStats stats() const;
+  hal::BoardDevices& devices() { return devices_; }
+  const hal::BoardConfig& board() const { return board_; }
+
+ private:
+  Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server);
+  void handle_connection(slproto::Connection& connection);
+  // False when the connection is gone.
+  bool run_scan(slproto::Connection& connection, const slproto::pb::ScanRequest& request);
+  void write_timing_log(const ScanPlan& plan, const ScanOutcome& outcome, const std::vector<TimingEvent>& sent);
+
+  hal::BoardConfig board_;
+  hal::BoardDevices devices_;
+  DaemonOptions options_;
+  slproto::Server server_;
+  Sequencer sequencer_;
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> scanning_{false};
+  mutable std::mutex stats_mutex_;
+  DaemonStats stats_;
+  std::string realtime_warning_;
+};
+
+// Frame-delivery statistics for ScanDone.
+void add_timing_stats(const TimingReport& report, slproto::pb::ScanDone& done);
+
+}  // namespace slscand

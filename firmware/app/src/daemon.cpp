@@ -1,0 +1,267 @@
+#include "slscand/app/daemon.hpp"
+
+#include <cstdio>
+#include <thread>
+
+#include "slproto/calibration.hpp"
+#include "slproto/handshake.hpp"
+#include "slscand/sequencer/realtime.hpp"
+
+namespace slscand {
+
+using slproto::Errc;
+using slproto::make_error;
+namespace pb = slproto::pb;
+using namespace std::chrono_literals;
+
+namespace {
+constexpr const char* kSoftwareVersion = "slscand 0.1.0";
+
+const char* state_name(pb::ScanState state) {
+  switch (state) {
+    case pb::SCAN_STATE_DONE: return "done";
+    case pb::SCAN_STATE_ABORTED: return "aborted";
+    case pb::SCAN_STATE_FAILED: return "failed";
+    default: return "running";
+  }
+}
+}  // namespace
+
+void add_timing_stats(const TimingReport& report, pb::ScanDone& done) {
+  for (const auto& s : report.all()) {
+    pb::TimingStat* stat = done.add_timing();
+    stat->set_name(s.name);
+    stat->set_count(s.count);
+    stat->set_mean_us(s.mean_us);
+    stat->set_stddev_us(s.stddev_us);
+    stat->set_min_us(s.min_us);
+    stat->set_max_us(s.max_us);
+    stat->set_p99_us(s.p99_us);
+  }
+}
+
+slproto::Result<std::unique_ptr<Daemon>> Daemon::create(hal::BoardConfig board, hal::BoardDevices devices,
+                                                        DaemonOptions options) {
+  const std::string address = options.bind_address.empty() ? board.bind_address : options.bind_address;
+  const int port = options.port < 0 ? board.port : options.port;
+  if (port > 65535) return make_error(Errc::invalid_argument, "port " + std::to_string(port) + " is out of range");
+  slproto::ServerOptions server_options;
+  server_options.connection = options.connection;
+  auto server = slproto::Server::listen(address, static_cast<std::uint16_t>(port), server_options);
+  if (!server) return std::move(server).error();
+  return std::unique_ptr<Daemon>(new Daemon(std::move(board), std::move(devices), std::move(options), std::move(*server)));
+}
+
+Daemon::Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server)
+    : board_(std::move(board)),
+      devices_(std::move(devices)),
+      options_(std::move(options)),
+      server_(std::move(server)),
+      sequencer_(devices_, board_) {}
+
+Daemon::~Daemon() {
+  stop();
+  sequencer_.make_safe(false);
+}
+
+void Daemon::stop() { stop_ = true; }
+
+DaemonStats Daemon::stats() const {
+  std::lock_guard lock(stats_mutex_);
+  return stats_;
+}
+
+void Daemon::serve() {
+  while (!stop_) {
+    auto connection = server_.accept(100ms);
+    if (!connection) continue;  // timeout, or a client that vanished during accept
+    {
+      std::lock_guard lock(stats_mutex_);
+      stats_.connections++;
+    }
+    handle_connection(*connection);
+    connection->close();
+  }
+}
+
+void Daemon::handle_connection(slproto::Connection& connection) {
+  slproto::ServerIdentity identity;
+  identity.board_name = board_.name;
+  identity.software_version = kSoftwareVersion;
+  identity.capabilities = pb::CAPABILITY_TURNTABLE | pb::CAPABILITY_TWO_PROJECTORS | pb::CAPABILITY_TIMING_LOG |
+                          (board_.trigger_source == hal::CameraTriggerSource::projector ? pb::CAPABILITY_HARDWARE_TRIGGER : 0) |
+                          (board_.is_sim() ? pb::CAPABILITY_SIMULATED : 0);
+  identity.camera.set_width(static_cast<std::uint32_t>(devices_.camera_format.width));
+  identity.camera.set_height(static_cast<std::uint32_t>(devices_.camera_format.height));
+  identity.camera.add_pixel_formats(to_proto(devices_.camera_format.pixel_format));
+  identity.camera.set_model(devices_.camera->describe());
+  identity.projector_count = 2;
+  identity.auth_token = options_.auth_token;
+  if (!slproto::server_handshake(connection, identity)) return;
+
+  while (!stop_) {
+    auto message = connection.receive(100ms);
+    if (!message) {
+      if (message.error().code == Errc::timeout) continue;
+      return;  // disconnected or a broken stream
+    }
+    if (const auto* request = message->get<pb::ScanRequest>()) {
+      const pb::ScanRequest copy = *request;  // the message buffer is reused by the next receive
+      if (!run_scan(connection, copy)) return;
+    } else if (const auto* abort = message->get<pb::Abort>()) {
+      (void)connection.send(slproto::to_proto(make_error(Errc::invalid_argument, "no scan is running"), abort->scan_id()));
+    } else if (message->get<pb::Error>() == nullptr) {
+      (void)connection.send(slproto::to_proto(
+          make_error(Errc::unsupported, std::string("slscand does not accept ") + slproto::message_type_name(message->type()) +
+                                            " messages"),
+          0));
+    }
+  }
+}
+
+bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& request) {
+  auto plan = make_scan_plan(request, board_, devices_.camera_format);
+  if (!plan) {
+    {
+      std::lock_guard lock(stats_mutex_);
+      stats_.scans_refused++;
+      stats_.last_error = plan.error().message;
+    }
+    std::fprintf(stderr, "slscand: %s\n", plan.error().message.c_str());
+    (void)connection.send(slproto::to_proto(plan.error(), request.scan_id()));
+    pb::ScanDone done;
+    done.set_scan_id(request.scan_id());
+    done.set_final_state(pb::SCAN_STATE_FAILED);
+    done.set_text(plan.error().message);
+    return connection.send(done).ok();
+  }
+  {
+    std::lock_guard lock(stats_mutex_);
+    stats_.scans_started++;
+  }
+  scanning_ = true;
+
+  BoundedQueue<SequencedFrame> queue(options_.queue_capacity);
+  std::atomic<bool> abort{false};
+  std::atomic<bool> connection_lost{false};
+  std::mutex cause_mutex;
+  std::string abort_cause;
+  auto set_abort = [&](const std::string& cause) {
+    std::lock_guard lock(cause_mutex);
+    if (abort_cause.empty()) abort_cause = cause;
+    abort = true;
+  };
+
+  std::uint64_t frames_sent = 0;
+  std::vector<TimingEvent> sent_events;
+  std::thread streamer([&] {
+    for (;;) {
+      std::optional<SequencedFrame> item = queue.pop(50ms);
+      if (!item) {
+        if (queue.closed_and_empty()) return;
+        continue;
+      }
+      if (connection_lost) continue;  // drain: the scan is ending
+      pb::FrameHeader header = make_frame_header(*item, plan->timing_events);
+      auto status = connection.send_frame(header, std::as_bytes(std::span(item->frame.pixels)));
+      if (!status) {
+        connection_lost = true;
+        set_abort("host connection lost while streaming: " + status.error().message);
+        continue;
+      }
+      frames_sent++;
+      sent_events.push_back(TimingEvent{pb::TIMING_EVENT_FRAME_SENT, monotonic_now_ns(), 0});
+    }
+  });
+
+  ScanOutcome outcome;
+  std::thread runner([&] {
+    if (options_.realtime && board_.realtime) {
+      const RealtimeResult rt = enter_realtime(board_.realtime_priority, board_.cpu);
+      if (!rt.warnings.empty() && realtime_warning_ != rt.warnings) {
+        realtime_warning_ = rt.warnings;
+        std::fprintf(stderr, "slscand: warning: %s\n", rt.warnings.c_str());
+      }
+    }
+    outcome = sequencer_.run(*plan, queue, abort, [&](const pb::Progress& p) {
+      if (!connection_lost) (void)connection.send(p);
+    });
+    queue.close();
+  });
+
+  // Meanwhile, listen to the host: Abort, a second ScanRequest (busy), or its disappearance.
+  while (!queue.closed_and_empty()) {
+    auto message = connection.receive(20ms);
+    if (!message) {
+      if (message.error().code == Errc::timeout) continue;
+      connection_lost = true;
+      set_abort("host disconnected: " + message.error().message);
+      break;
+    }
+    if (const auto* a = message->get<pb::Abort>()) {
+      if (a->scan_id() == 0 || a->scan_id() == plan->scan_id) {
+        set_abort("aborted by the host" + (a->reason().empty() ? std::string() : ": " + a->reason()));
+      }
+    } else if (const auto* r = message->get<pb::ScanRequest>()) {
+      (void)connection.send(slproto::to_proto(
+          make_error(Errc::busy, "scan " + std::to_string(plan->scan_id) + " is running"), r->scan_id()));
+    }
+  }
+  runner.join();
+  queue.close();
+  streamer.join();
+  scanning_ = false;
+
+  if (outcome.state == pb::SCAN_STATE_ABORTED) {
+    std::lock_guard lock(cause_mutex);
+    outcome.error = make_error(Errc::aborted, abort_cause.empty() ? "aborted" : abort_cause);
+  }
+  if (connection_lost && outcome.state == pb::SCAN_STATE_DONE && frames_sent < outcome.frames_captured) {
+    outcome.state = pb::SCAN_STATE_FAILED;
+    outcome.error = make_error(Errc::disconnected, abort_cause);
+  }
+  {
+    std::lock_guard lock(stats_mutex_);
+    if (outcome.state == pb::SCAN_STATE_DONE) stats_.scans_done++;
+    else if (outcome.state == pb::SCAN_STATE_ABORTED) stats_.scans_aborted++;
+    else stats_.scans_failed++;
+    if (outcome.state != pb::SCAN_STATE_DONE) stats_.last_error = outcome.error.message;
+  }
+  std::fprintf(stderr, "slscand: scan %llu %s: %llu of %llu frames sent%s%s\n",
+               static_cast<unsigned long long>(plan->scan_id), state_name(outcome.state),
+               static_cast<unsigned long long>(frames_sent), static_cast<unsigned long long>(plan->frames_total()),
+               outcome.state == pb::SCAN_STATE_DONE ? "" : ": ", outcome.error.message.c_str());
+  write_timing_log(*plan, outcome, sent_events);
+  if (connection_lost) return false;
+
+  if (outcome.state == pb::SCAN_STATE_FAILED) {
+    (void)connection.send(slproto::to_proto(outcome.error, plan->scan_id));
+  }
+  pb::ScanDone done;
+  done.set_scan_id(plan->scan_id);
+  done.set_final_state(outcome.state);
+  done.set_frames_sent(frames_sent);
+  done.set_views_completed(outcome.views_completed);
+  done.set_duration_ns(static_cast<std::uint64_t>(outcome.duration_ns));
+  done.set_frames_dropped(0);  // never: back-pressure pauses the sequencer instead
+  done.set_text(outcome.state == pb::SCAN_STATE_DONE ? "scan complete" : outcome.error.message);
+  add_timing_stats(make_timing_report(outcome.frames, static_cast<double>(plan->period_ns) / kMicro), done);
+  return connection.send(done).ok();
+}
+
+void Daemon::write_timing_log(const ScanPlan& plan, const ScanOutcome& outcome, const std::vector<TimingEvent>& sent) {
+  if (options_.timing_log_dir.empty()) return;
+  std::string text = "# slscand timing log: kind,monotonic_ns,source\n";
+  auto add = [&](const TimingEvent& e) {
+    text += std::string(pb::TimingEventKind_Name(e.kind)) + "," + std::to_string(e.monotonic_ns) + "," +
+            std::to_string(e.source) + "\n";
+  };
+  for (const auto& e : outcome.events) add(e);
+  for (const auto& e : sent) add(e);
+  const std::string path = options_.timing_log_dir + "/scan-" + std::to_string(plan.scan_id) + "-timing.csv";
+  if (auto s = slproto::write_file_atomically(path, text); !s) {
+    std::fprintf(stderr, "slscand: warning: cannot write the timing log: %s\n", s.error().message.c_str());
+  }
+}
+
+}  // namespace slscand

@@ -1,0 +1,175 @@
+// slscand: the scanner board's daemon.
+//   slscand --board boards/sim.toml [--port N] [--bind ADDR] [--timing-log DIR] [--token T]
+//   slscand --board boards/sim.toml --timing-report [--views N] [--exposure-us E] [--period-us P]
+//   slscand --list-backends
+// Exit codes: 0 ok, 1 runtime failure, 2 bad command line or board file.
+#include <atomic>
+#include <cerrno>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+#include <thread>
+
+#include "slproto/messages.hpp"
+#include "slscand/app/daemon.hpp"
+#include "slscand/sequencer/realtime.hpp"
+
+namespace {
+
+std::atomic<slscand::Daemon*> g_daemon{nullptr};
+
+void on_signal(int) {
+  if (slscand::Daemon* d = g_daemon.load()) d->stop();
+}
+
+void usage(std::FILE* out) {
+  std::fputs(
+      "usage: slscand --board FILE [--port N] [--bind ADDR] [--timing-log DIR] [--token TOKEN] [--no-realtime]\n"
+      "       slscand --board FILE --timing-report [--views N] [--exposure-us E] [--period-us P]\n"
+      "       slscand --list-backends\n"
+      "Serves scans to one host at a time over slproto (TCP). --timing-report runs one scan on the\n"
+      "board locally (use the sim board for a machine without hardware) and prints its timing.\n",
+      out);
+}
+
+bool parse_int(const char* text, long min, long max, long& out) {
+  char* end = nullptr;
+  errno = 0;
+  const long v = std::strtol(text, &end, 10);
+  if (errno != 0 || end == text || *end != '\0' || v < min || v > max) return false;
+  out = v;
+  return true;
+}
+
+int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDevices& devices, long views,
+                  long exposure_us, long period_us, bool realtime) {
+  namespace pb = slproto::pb;
+  pb::ScanRequest request;
+  request.set_scan_id(1);
+  for (long v = 0; v < views; ++v) request.add_turntable_angles_deg(60.0 * static_cast<double>(v));
+  request.add_projectors(0);
+  request.add_projectors(1);
+  *request.mutable_plan() = slproto::to_proto(slproto::PatternPlanConfig{});
+  request.set_exposure_us(static_cast<std::uint32_t>(exposure_us > 0 ? exposure_us : static_cast<long>(board.pattern_exposure_us)));
+  request.set_pattern_period_us(static_cast<std::uint32_t>(period_us > 0 ? period_us : static_cast<long>(board.pattern_period_us)));
+  request.set_timing_events(true);
+  request.set_pixel_format(slscand::to_proto(devices.camera_format.pixel_format));
+  auto plan = slscand::make_scan_plan(request, board, devices.camera_format);
+  if (!plan) {
+    std::fprintf(stderr, "slscand: %s\n", plan.error().message.c_str());
+    return 2;
+  }
+  slscand::Sequencer sequencer(devices, board);
+  slscand::BoundedQueue<slscand::SequencedFrame> queue(8);
+  std::atomic<bool> abort{false};
+  std::thread consumer([&] {
+    while (!queue.closed_and_empty()) (void)queue.pop(std::chrono::milliseconds(50));
+  });
+  slscand::ScanOutcome outcome;
+  std::thread runner([&] {
+    if (realtime && board.realtime) {
+      const auto rt = slscand::enter_realtime(board.realtime_priority, board.cpu);
+      if (!rt.warnings.empty()) std::fprintf(stderr, "slscand: warning: %s\n", rt.warnings.c_str());
+      std::printf("realtime: mlockall %s, SCHED_FIFO %s\n", rt.memory_locked ? "yes" : "no", rt.fifo ? "yes" : "no");
+    }
+    outcome = sequencer.run(*plan, queue, abort);
+    queue.close();
+  });
+  runner.join();
+  consumer.join();
+  if (outcome.state != pb::SCAN_STATE_DONE) {
+    std::fprintf(stderr, "slscand: timing scan failed: %s\n", outcome.error.message.c_str());
+    return 1;
+  }
+  std::printf("board %s: %llu frames, %u views x %zu projectors x %zu patterns, exposure %u us, scan %.2f s\n",
+              board.name.c_str(), static_cast<unsigned long long>(outcome.frames_captured), outcome.views_completed,
+              plan->projectors.size(), plan->patterns.size(), request.exposure_us(),
+              static_cast<double>(outcome.duration_ns) * 1e-9);
+  std::fputs(slscand::make_timing_report(outcome.frames, static_cast<double>(plan->period_ns) / 1000.0).to_text().c_str(),
+             stdout);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string board_path, bind, timing_dir, token;
+  long port = -1, views = 6, exposure_us = 0, period_us = 0;
+  bool report = false, realtime = true;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto value = [&](const char* name) -> const char* {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "slscand: %s needs a value\n", name);
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (arg == "--board") board_path = value("--board");
+    else if (arg == "--bind") bind = value("--bind");
+    else if (arg == "--timing-log") timing_dir = value("--timing-log");
+    else if (arg == "--token") token = value("--token");
+    else if (arg == "--timing-report") report = true;
+    else if (arg == "--no-realtime") realtime = false;
+    else if (arg == "--list-backends") {
+      std::printf("%s\n", slscand::hal::available_backends().c_str());
+      return 0;
+    } else if (arg == "--port" || arg == "--views" || arg == "--exposure-us" || arg == "--period-us") {
+      const char* text = value(arg.c_str());
+      long* out = arg == "--port" ? &port : arg == "--views" ? &views : arg == "--exposure-us" ? &exposure_us : &period_us;
+      const long max = arg == "--port" ? 65535 : arg == "--views" ? 360 : 10'000'000;
+      if (!parse_int(text, arg == "--port" ? 0 : 1, max, *out)) {
+        std::fprintf(stderr, "slscand: %s: '%s' is not an integer in range\n", arg.c_str(), text);
+        return 2;
+      }
+    } else if (arg == "--help" || arg == "-h") {
+      usage(stdout);
+      return 0;
+    } else {
+      std::fprintf(stderr, "slscand: unknown argument '%s'\n", arg.c_str());
+      usage(stderr);
+      return 2;
+    }
+  }
+  if (board_path.empty()) {
+    std::fprintf(stderr, "slscand: --board is required\n");
+    usage(stderr);
+    return 2;
+  }
+  auto board = slscand::hal::load_board(board_path);
+  if (!board) {
+    std::fprintf(stderr, "slscand: %s\n", board.error().message.c_str());
+    return 2;
+  }
+  auto devices = slscand::hal::open_board_devices(*board);
+  if (!devices) {
+    std::fprintf(stderr, "slscand: cannot open the board's devices: %s\n", devices.error().message.c_str());
+    return 1;
+  }
+  if (report) return timing_report(*board, *devices, views, exposure_us, period_us, realtime);
+
+  slscand::DaemonOptions options;
+  options.bind_address = bind;
+  options.port = static_cast<int>(port);
+  options.timing_log_dir = timing_dir;
+  options.auth_token = token;
+  options.realtime = realtime;
+  auto daemon = slscand::Daemon::create(*board, std::move(*devices), options);
+  if (!daemon) {
+    std::fprintf(stderr, "slscand: %s\n", daemon.error().message.c_str());
+    return 1;
+  }
+  g_daemon = daemon->get();
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+  std::signal(SIGPIPE, SIG_IGN);
+  std::printf("slscand: board '%s' (%s), listening on %s:%u\n", board->name.c_str(),
+              slscand::hal::available_backends().c_str(), bind.empty() ? board->bind_address.c_str() : bind.c_str(),
+              (*daemon)->port());
+  std::fflush(stdout);
+  (*daemon)->serve();
+  g_daemon = nullptr;
+  return 0;
+}

@@ -1,0 +1,51 @@
+// Opens every device a board file names, with the backend it names. The one place that knows
+// which backends this build has (libcamera's pipeline-handler registry, in one function).
+#pragma once
+
+#include <array>
+#include <memory>
+#include <string>
+
+#include "slproto/pattern_plan.hpp"
+#include "slproto/result.hpp"
+#include "slscand/hal/board.hpp"
+#include "slscand/hal/camera.hpp"
+#include "slscand/hal/gpio.hpp"
+#include "slscand/hal/projector.hpp"
+#include "slscand/hal/turntable.hpp"
+
+namespace slrig {
+struct Scene;
+}
+
+namespace slscand::hal {
+namespace sim {
+class SimRig;
+}
+
+struct BoardDevices {
+  // Declaration order is teardown order in reverse: requests before their chip, the turntable
+  // before the emulator it talks to.
+  std::shared_ptr<sim::SimRig> sim_rig;  // set on sim boards (fault injection, edge records)
+  std::unique_ptr<GpioChip> chip;
+  std::array<std::unique_ptr<DlpProjector>, 2> projectors;
+  std::unique_ptr<LineRequest> camera_trigger;  // trigger = "gpio" boards only
+  std::unique_ptr<Camera> camera;
+  CameraFormat camera_format;
+  std::unique_ptr<Turntable> turntable;
+
+  // Puts the plan's patterns and the exposure into the projectors' memory. On hardware the
+  // DLPC350 is flashed beforehand (docs/hardware.md), so this only checks the plan fits.
+  slproto::Status load_patterns(const slproto::PatternPlan& plan, Nanos exposure_ns);
+};
+
+struct OpenOptions {
+  const slrig::Scene* sim_scene = nullptr;  // overrides the board's sim.scene preset
+};
+
+slproto::Result<BoardDevices> open_board_devices(const BoardConfig& board, const OpenOptions& options = {});
+
+// "gpio: gpiod(v1) sim; camera: v4l2 libcamera sim; serial: termios libserialport emulator".
+std::string available_backends();
+
+}  // namespace slscand::hal

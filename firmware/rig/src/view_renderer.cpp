@@ -1,0 +1,429 @@
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <thread>
+
+#include "scene_build.hpp"
+#include "slrig/rig.hpp"
+
+namespace slrig {
+
+namespace {
+
+using detail::Frame;
+using detail::V3;
+
+constexpr int kSamplesPerPx = 8;  // profile table resolution (sub-samples per projector pixel)
+
+// Runs fn(row_begin, row_end) over [0, rows) on the machine's cores, handing out blocks of
+// rows dynamically (the top of a view is cheap wall, the bottom busy table and objects).
+template <class F>
+void parallel_rows(int rows, F&& fn) {
+  const unsigned hw = std::max(1u, std::thread::hardware_concurrency());
+  const int threads = std::clamp(static_cast<int>(hw), 1, std::max(1, std::min(16, rows / 8)));
+  constexpr int kBlock = 8;
+  std::atomic<int> next{0};
+  auto worker = [&] {
+    for (;;) {
+      const int begin = next.fetch_add(kBlock);
+      if (begin >= rows) return;
+      fn(begin, std::min(rows, begin + kBlock));
+    }
+  };
+  std::vector<std::thread> pool;
+  pool.reserve(static_cast<std::size_t>(threads - 1));
+  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (auto& th : pool) th.join();
+}
+
+// 32-bit finaliser (MurmurHash3 fmix32): cheap enough to vectorise in the per-frame loop.
+inline std::uint32_t fmix32(std::uint32_t h) {
+  h ^= h >> 16;
+  h *= 0x85EBCA6Bu;
+  h ^= h >> 13;
+  h *= 0xC2B2AE35u;
+  h ^= h >> 16;
+  return h;
+}
+
+// Distortion with its Jacobian, for Newton undistortion warm-started from the neighbour pixel.
+struct Undistorter {
+  slproto::LensDistortion d;
+  bool solve(double xd, double yd, double& x, double& y) const {
+    if (d.is_zero()) {
+      x = xd;
+      y = yd;
+      return true;
+    }
+    for (int iter = 0; iter < 30; ++iter) {
+      const double r2 = x * x + y * y;
+      const double radial = 1 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3));
+      const double dradial = d.k1 + r2 * (2 * d.k2 + 3 * r2 * d.k3);
+      const double fx = x * radial + 2 * d.p1 * x * y + d.p2 * (r2 + 2 * x * x) - xd;
+      const double fy = y * radial + d.p1 * (r2 + 2 * y * y) + 2 * d.p2 * x * y - yd;
+      const double j00 = radial + 2 * x * x * dradial + 2 * d.p1 * y + 6 * d.p2 * x;
+      const double j01 = 2 * x * y * dradial + 2 * d.p1 * x + 2 * d.p2 * y;
+      const double j10 = 2 * x * y * dradial + 2 * d.p1 * x + 2 * d.p2 * y;
+      const double j11 = radial + 2 * y * y * dradial + 6 * d.p1 * y + 2 * d.p2 * x;
+      const double det = j00 * j11 - j01 * j10;
+      if (!std::isfinite(det) || std::abs(det) < 1e-12) return false;
+      const double dx = (j11 * fx - j01 * fy) / det, dy = (-j10 * fx + j00 * fy) / det;
+      x -= dx;
+      y -= dy;
+      if (std::abs(dx) < 1e-15 && std::abs(dy) < 1e-15) return true;
+    }
+    return false;
+  }
+};
+
+double gaussian_cdf(double z) { return 0.5 * std::erfc(-z / std::sqrt(2.0)); }
+
+// The light a projector puts out along its coding axis for one pattern, sampled at
+// kSamplesPerPx points per projector pixel from coordinate -0.5 to W - 0.5: each DMD pixel
+// emits its 8-bit level through the gamma curve over its whole width, and defocus blurs that
+// with a Gaussian (so the blur is of the emitted light, not of the pattern values).
+std::vector<float> build_profile(const slproto::PatternPlan& plan, std::size_t index, double gamma, double sigma) {
+  const int W = plan.config().coded_extent();
+  std::vector<double> emitted(static_cast<std::size_t>(W));
+  for (int k = 0; k < W; ++k) {
+    const double level = std::round(255.0 * plan.value(index, k)) / 255.0;
+    emitted[static_cast<std::size_t>(k)] = std::pow(level, gamma);
+  }
+  const int S = kSamplesPerPx;
+  std::vector<float> table(static_cast<std::size_t>(W) * S + 1);
+  const int reach = sigma > 1e-9 ? static_cast<int>(std::ceil(5 * sigma)) + 1 : 0;
+  // weights[r][d]: share of pixel m - d at sample s = m S + r, where x - k = d + r / S - 0.5.
+  std::vector<double> weights(static_cast<std::size_t>(S * (2 * reach + 1)));
+  for (int r = 0; r < S; ++r)
+    for (int d = -reach; d <= reach; ++d) {
+      const double offset = d + static_cast<double>(r) / S - 0.5;  // x - k
+      double w;
+      if (reach == 0) {
+        w = (offset >= -0.5 && offset < 0.5) ? 1.0 : 0.0;
+      } else {
+        w = gaussian_cdf((offset + 0.5) / sigma) - gaussian_cdf((offset - 0.5) / sigma);
+      }
+      weights[static_cast<std::size_t>(r * (2 * reach + 1) + d + reach)] = w;
+    }
+  for (std::size_t s = 0; s < table.size(); ++s) {
+    const int m = static_cast<int>(s) / S, r = static_cast<int>(s) % S;
+    double sum = 0;
+    for (int d = -reach; d <= reach; ++d) {
+      const int k = m - d;
+      if (k < 0 || k >= W) continue;
+      sum += weights[static_cast<std::size_t>(r * (2 * reach + 1) + d + reach)] * emitted[static_cast<std::size_t>(k)];
+    }
+    table[s] = static_cast<float>(sum);
+  }
+  if (reach == 0) table.back() = static_cast<float>(emitted.back());
+  return table;
+}
+
+}  // namespace
+
+struct ViewRenderer::Impl {
+  int width = 0, height = 0, view_index = 0;
+  int bit_depth = 8;
+  slproto::PatternPlan plan;
+  std::array<double, 2> gamma{}, sigma{};
+  bool noise = true;
+  std::uint64_t seed = 1;
+  float max_dn = 255, dark_dn = 0, shot_per_dn = 0, read_var = 0;
+  ViewGroundTruth truth;
+  std::vector<float> offset;                         // ambient + dark, DN
+  std::array<std::vector<float>, 2> position, gain;  // profile sample position; DN per unit light
+  std::array<std::vector<std::vector<float>>, 2> profiles;
+
+  void shade(const Scene& scene, const detail::World& world);
+  void render_with(int side, const std::vector<float>* profile, std::uint64_t frame_key,
+                   std::span<std::uint8_t> out) const;
+};
+
+void ViewRenderer::Impl::shade(const Scene& scene, const detail::World& world) {
+  const slproto::PinholeModel& cam = scene.camera;
+  const std::size_t n = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  truth.points.assign(3 * n, nan);
+  truth.normals.assign(3 * n, nan);
+  truth.object_id.assign(n, -1);
+  truth.part_id.assign(n, 0);
+  for (int s = 0; s < 2; ++s) {
+    truth.projector_coord[static_cast<std::size_t>(s)].assign(n, nan);
+    truth.lit[static_cast<std::size_t>(s)].assign(n, 0);
+    position[static_cast<std::size_t>(s)].assign(n, 0.0f);
+    gain[static_cast<std::size_t>(s)].assign(n, 0.0f);
+  }
+  offset.assign(n, 0.0f);
+
+  const double scale = std::ldexp(1.0, bit_depth - 8);  // 8-bit DN -> frame DN
+  const double white = scene.sensor.white_level_dn * scale;
+  const double dark = scene.sensor.dark_level_dn * scale;
+  struct ProjectorGeometry {
+    Frame proj_from_cam;
+    V3 centre;
+    slproto::PinholeModel intrinsics;
+    double reference_distance2 = 1, brightness = 1;
+  };
+  std::array<ProjectorGeometry, 2> projectors;
+  const V3 table_centre(scene.turntable.cam_from_table.t);
+  for (std::size_t s = 0; s < 2; ++s) {
+    const ProjectorModel& model = scene.projectors[s];
+    projectors[s].proj_from_cam = Frame(model.cam_from_proj.inverse());
+    projectors[s].centre = V3(model.cam_from_proj.t);
+    projectors[s].intrinsics = model.intrinsics;
+    const V3 to_centre = table_centre - projectors[s].centre;
+    projectors[s].reference_distance2 = detail::dot(to_centre, to_centre);
+    projectors[s].brightness = model.brightness;
+  }
+  const bool columns = scene.pattern_plan.axis == slproto::CodingAxis::columns;
+  const Undistorter undistorter{cam.distortion};
+
+  parallel_rows(height, [&](int row_begin, int row_end) {
+    for (int v = row_begin; v < row_end; ++v) {
+      double x = (0 - cam.cx) / cam.fx, y = (v - cam.cy) / cam.fy;
+      for (int u = 0; u < width; ++u) {
+        const std::size_t i =
+            static_cast<std::size_t>(v) * static_cast<std::size_t>(width) + static_cast<std::size_t>(u);
+        const double xd = (u - cam.cx) / cam.fx, yd = (v - cam.cy) / cam.fy;
+        if (!undistorter.solve(xd, yd, x, y)) {
+          x = xd;
+          y = yd;
+          offset[i] = static_cast<float>(dark);
+          continue;
+        }
+        const V3 dir{x, y, 1.0};
+        detail::Hit hit;
+        if (!world.intersect({0, 0, 0}, dir, 0.0, std::numeric_limits<double>::infinity(), hit)) {
+          offset[i] = static_cast<float>(dark);
+          continue;
+        }
+        const detail::Primitive& prim = world.primitives[static_cast<std::size_t>(hit.primitive)];
+        const V3 p = hit.t * dir;
+        const V3 view = detail::normalized(-dir);
+        V3 normal = detail::normalized(hit.normal);
+        if (detail::dot(normal, view) < 0) normal = -normal;
+        const double albedo = world.albedo_at(hit);
+        truth.points[3 * i] = static_cast<float>(p.x);
+        truth.points[3 * i + 1] = static_cast<float>(p.y);
+        truth.points[3 * i + 2] = static_cast<float>(p.z);
+        truth.normals[3 * i] = static_cast<float>(normal.x);
+        truth.normals[3 * i + 1] = static_cast<float>(normal.y);
+        truth.normals[3 * i + 2] = static_cast<float>(normal.z);
+        truth.object_id[i] = prim.object_id;
+        truth.part_id[i] = prim.part_id;
+        offset[i] = static_cast<float>(white * albedo * scene.ambient + dark);
+        for (std::size_t s = 0; s < 2; ++s) {
+          const ProjectorGeometry& pg = projectors[s];
+          const V3 q = pg.proj_from_cam.apply(p);
+          double up, vp;
+          if (!pg.intrinsics.project(q.arr(), up, vp)) continue;
+          if (up < -0.5 || up > pg.intrinsics.width - 0.5 || vp < -0.5 || vp > pg.intrinsics.height - 0.5) continue;
+          const V3 to_light = pg.centre - p;
+          const double distance2 = detail::dot(to_light, to_light);
+          const V3 l = (1.0 / std::sqrt(distance2)) * to_light;
+          const double cos_incidence = detail::dot(normal, l);
+          if (cos_incidence <= 0) continue;
+          if (world.occluded(p + 2e-4 * normal, to_light, 0.0, 1.0 - 1e-9, prim.convex() ? hit.primitive : -1))
+            continue;
+          double reflect = albedo * cos_incidence;
+          if (prim.material.specular > 0) {
+            const V3 h = detail::normalized(l + view);
+            reflect +=
+                prim.material.specular * std::pow(std::max(0.0, detail::dot(normal, h)), prim.material.specular_power);
+          }
+          const double falloff = pg.reference_distance2 / distance2;
+          const double coord = columns ? up : vp;
+          truth.projector_coord[s][i] = static_cast<float>(coord);
+          truth.lit[s][i] = 1;
+          position[s][i] = static_cast<float>((coord + 0.5) * kSamplesPerPx);
+          gain[s][i] = static_cast<float>(white * pg.brightness * falloff * reflect);
+        }
+      }
+    }
+  });
+}
+
+void ViewRenderer::Impl::render_with(int side, const std::vector<float>* profile, std::uint64_t frame_key,
+                                     std::span<std::uint8_t> out) const {
+  const float* pos = side >= 0 ? position[static_cast<std::size_t>(side)].data() : nullptr;
+  const float* g = side >= 0 ? gain[static_cast<std::size_t>(side)].data() : nullptr;
+  const float* table = profile != nullptr ? profile->data() : nullptr;
+  const int last = profile != nullptr ? static_cast<int>(profile->size()) - 2 : 0;
+  const bool wide = bit_depth > 8;
+  const bool with_noise = noise;
+  const float dark = dark_dn, shot = shot_per_dn, read = read_var, max_value = max_dn;
+  const auto key_a = static_cast<std::uint32_t>(frame_key), key_b = static_cast<std::uint32_t>(frame_key >> 32);
+  const auto w = static_cast<std::size_t>(width);
+  const float* offsets = offset.data();
+  std::uint8_t* const frame = out.data();
+  parallel_rows(height, [=](int row_begin, int row_end) {
+    // Locals, not closure members: byte stores to the frame may alias anything in memory.
+    const std::size_t n = w;
+    const float max_level = max_value;
+    std::vector<float> light_buffer(w);
+    float* __restrict light = light_buffer.data();
+    for (int v = row_begin; v < row_end; ++v) {
+      const std::size_t row = static_cast<std::size_t>(v) * w;
+      // Pass 1: the noise-free signal (a table look-up per pixel).
+      const float* __restrict off = offsets + row;
+      if (table != nullptr) {
+        const float* __restrict p = pos + row;
+        const float* __restrict gr = g + row;
+        for (std::size_t u = 0; u < w; ++u) {
+          const int k = std::min(static_cast<int>(p[u]), last);
+          const float frac = p[u] - static_cast<float>(k);
+          light[u] = off[u] + gr[u] * (table[k] + frac * (table[k + 1] - table[k]));
+        }
+      } else {
+        for (std::size_t u = 0; u < w; ++u) light[u] = off[u];
+      }
+      // Pass 2: noise, branch-free so it vectorises.
+      if (with_noise) {
+        constexpr float kScale = 1.7320508075688772f / 65535.0f;  // sqrt(3) / 65535
+        constexpr float kMean = 2.0f * 1.7320508075688772f;
+        const auto base = static_cast<std::uint32_t>(row);
+        for (std::size_t u = 0; u < w; ++u) {
+          const std::uint32_t index = base + static_cast<std::uint32_t>(u);
+          const std::uint32_t h1 = fmix32(index * 0x9E3779B1u ^ key_a);
+          const std::uint32_t h2 = fmix32(index * 0x85EBCA77u ^ key_b);
+          // Sum of four 16-bit uniforms: an Irwin-Hall approximation of a standard normal
+          // (exact mean and variance, tails cut at 3.46 sigma).
+          const auto sum =
+              static_cast<float>(static_cast<std::int32_t>((h1 & 0xFFFFu) + (h1 >> 16) + (h2 & 0xFFFFu) + (h2 >> 16)));
+          const float z = sum * kScale - kMean;
+          const float signal = light[u] - dark;
+          const float variance = shot * (signal > 0.0f ? signal : 0.0f) + read;
+          light[u] += std::sqrt(variance) * z;
+        }
+      }
+      // Pass 3: rounding and clipping to the ADC range.
+      if (wide) {
+        for (std::size_t u = 0; u < n; ++u) {
+          const float clipped = std::min(std::max(light[u] + 0.5f, 0.0f), max_level);
+          const auto level = static_cast<std::uint32_t>(static_cast<std::int32_t>(clipped));
+          frame[2 * (row + u)] = static_cast<std::uint8_t>(level & 0xFF);
+          frame[2 * (row + u) + 1] = static_cast<std::uint8_t>(level >> 8);
+        }
+      } else {
+        std::uint8_t* __restrict dst = frame + row;
+        for (std::size_t u = 0; u < n; ++u) {
+          const float clipped = std::min(std::max(light[u] + 0.5f, 0.0f), max_level);
+          dst[u] = static_cast<std::uint8_t>(static_cast<std::int32_t>(clipped));
+        }
+      }
+    }
+  });
+}
+
+ViewRenderer::ViewRenderer(const Scene& scene, double commanded_angle_deg, int view_index)
+    : impl_(std::make_unique<Impl>()) {
+  if (auto status = check_scene(scene); !status) throw std::invalid_argument(status.error().message);
+  auto prepared = detail::prepare_objects(scene);
+  if (!prepared) throw std::invalid_argument(prepared.error().message);
+  Impl& m = *impl_;
+  m.width = scene.camera.width;
+  m.height = scene.camera.height;
+  m.view_index = view_index;
+  m.bit_depth = scene.sensor.bit_depth;
+  m.plan = slproto::PatternPlan(scene.pattern_plan);
+  m.noise = scene.sensor.noise;
+  m.seed = scene.sensor.seed;
+  const double scale = std::ldexp(1.0, m.bit_depth - 8);
+  m.max_dn = static_cast<float>(std::ldexp(1.0, m.bit_depth) - 1);
+  m.dark_dn = static_cast<float>(scene.sensor.dark_level_dn * scale);
+  // Conversion gain: the full well fills the ADC range. Shot-noise variance in DN is then
+  // signal / gain; read noise is given on the 8-bit scale (same electrons at any depth).
+  const double electrons_per_dn = scene.sensor.full_well_electrons / m.max_dn;
+  m.shot_per_dn = static_cast<float>(1.0 / electrons_per_dn);
+  m.read_var = static_cast<float>(std::pow(scene.sensor.read_noise_dn * scale, 2));
+  for (std::size_t s = 0; s < 2; ++s) {
+    m.gamma[s] = scene.projectors[s].gamma;
+    m.sigma[s] = scene.projectors[s].defocus_sigma_px;
+  }
+
+  m.truth.width = m.width;
+  m.truth.height = m.height;
+  m.truth.commanded_angle_deg = commanded_angle_deg;
+  m.truth.cam_from_table =
+      detail::actual_cam_from_table(scene, commanded_angle_deg, view_index, m.truth.actual_angle_deg);
+  const detail::World world = detail::build_world(scene, *prepared, m.truth.cam_from_table);
+  m.shade(scene, world);
+  for (std::size_t s = 0; s < 2; ++s) {
+    m.profiles[s].reserve(m.plan.size());
+    for (std::size_t i = 0; i < m.plan.size(); ++i)
+      m.profiles[s].push_back(build_profile(m.plan, i, m.gamma[s], m.sigma[s]));
+  }
+}
+
+slproto::Result<ViewRenderer> ViewRenderer::make(const Scene& scene, double commanded_angle_deg, int view_index) {
+  if (auto status = check_scene(scene); !status) return status.error();
+  if (!std::isfinite(commanded_angle_deg))
+    return slproto::make_error(slproto::Errc::invalid_argument, "view angle is not a finite number");
+  auto prepared = detail::prepare_objects(scene);  // surfaces mesh-file errors as a Result
+  if (!prepared) return std::move(prepared).error();
+  return ViewRenderer(scene, commanded_angle_deg, view_index);
+}
+
+ViewRenderer::~ViewRenderer() = default;
+ViewRenderer::ViewRenderer(ViewRenderer&&) noexcept = default;
+ViewRenderer& ViewRenderer::operator=(ViewRenderer&&) noexcept = default;
+
+int ViewRenderer::width() const { return impl_->width; }
+int ViewRenderer::height() const { return impl_->height; }
+std::size_t ViewRenderer::frame_bytes() const {
+  return static_cast<std::size_t>(impl_->width) * static_cast<std::size_t>(impl_->height) *
+         (impl_->bit_depth > 8 ? 2u : 1u);
+}
+
+slproto::Status ViewRenderer::try_render(ProjectorSide side, const slproto::PatternPlan& plan,
+                                         std::size_t pattern_index, std::span<std::uint8_t> out) const {
+  const Impl& m = *impl_;
+  auto fail = [](std::string message) {
+    return slproto::make_error(slproto::Errc::invalid_argument, std::move(message));
+  };
+  if (out.size() < frame_bytes())
+    return fail("render: output buffer of " + std::to_string(out.size()) + " bytes is smaller than one frame (" +
+                std::to_string(frame_bytes()) + ")");
+  if (pattern_index >= plan.size())
+    return fail("render: pattern index " + std::to_string(pattern_index) + " is beyond the plan's " +
+                std::to_string(plan.size()) + " patterns");
+  const auto s = static_cast<std::size_t>(side);
+  if (s > 1) return fail("render: projector side " + std::to_string(s) + " does not exist");
+  const std::uint64_t key =
+      detail::mix64(detail::mix64(detail::mix64(m.seed) ^ static_cast<std::uint64_t>(m.view_index)) ^
+                    ((static_cast<std::uint64_t>(s) << 32) | pattern_index));
+  if (plan.config() == m.plan.config()) {
+    m.render_with(static_cast<int>(s), &m.profiles[s][pattern_index], key, out);
+    return slproto::Ok{};
+  }
+  if (plan.config().axis != m.plan.config().axis || plan.config().coded_extent() != m.plan.config().coded_extent())
+    return fail("render: the plan codes a different axis or extent than the projector the view was cast for");
+  const std::vector<float> profile = build_profile(plan, pattern_index, m.gamma[s], m.sigma[s]);
+  m.render_with(static_cast<int>(s), &profile, key, out);
+  return slproto::Ok{};
+}
+
+void ViewRenderer::render(ProjectorSide side, const slproto::PatternPlan& plan, std::size_t pattern_index,
+                          std::span<std::uint8_t> out) const {
+  if (auto status = try_render(side, plan, pattern_index, out); !status)
+    throw std::invalid_argument(status.error().message);
+}
+
+void ViewRenderer::render(ProjectorSide side, std::size_t pattern_index, std::span<std::uint8_t> out) const {
+  render(side, impl_->plan, pattern_index, out);
+}
+
+void ViewRenderer::render_ambient(std::span<std::uint8_t> out) const {
+  const Impl& m = *impl_;
+  if (out.size() < frame_bytes()) throw std::invalid_argument("render_ambient: output buffer smaller than one frame");
+  const std::uint64_t key =
+      detail::mix64(detail::mix64(detail::mix64(m.seed) ^ static_cast<std::uint64_t>(m.view_index)) ^ (7ull << 40));
+  m.render_with(-1, nullptr, key, out);
+}
+
+const ViewGroundTruth& ViewRenderer::ground_truth() const { return impl_->truth; }
+
+}  // namespace slrig

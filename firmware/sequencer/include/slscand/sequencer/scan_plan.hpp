@@ -1,0 +1,34 @@
+// A scan request checked against the board that has to run it. A request the board cannot do
+// is refused with the reason (an exposure below the DLP's minimum, a period too short for
+// exposure + read-out, a pixel format the camera was not set up for, ...).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "slproto/messages.hpp"
+#include "slproto/pattern_plan.hpp"
+#include "slscand/hal/board.hpp"
+
+namespace slscand {
+
+struct ScanPlan {
+  std::uint64_t scan_id = 0;
+  std::vector<double> angles_deg;
+  std::vector<std::uint32_t> projectors;  // 0 = left, 1 = right
+  slproto::PatternPlan patterns;
+  Nanos exposure_ns = 0;
+  Nanos period_ns = 0;
+  Nanos trigger_delay_ns = 0;  // projector trigger -> camera trigger (gpio-trigger boards)
+  Nanos settle_ns = 0;
+  hal::PixelFormat pixel_format = hal::PixelFormat::mono8;
+  bool timing_events = true;
+  std::uint64_t frames_total() const { return angles_deg.size() * projectors.size() * patterns.size(); }
+};
+
+slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request, const hal::BoardConfig& board,
+                                         const hal::CameraFormat& camera_format);
+
+slproto::pb::PixelFormat to_proto(hal::PixelFormat format) noexcept;
+
+}  // namespace slscand

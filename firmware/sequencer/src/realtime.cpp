@@ -1,0 +1,59 @@
+#include "slscand/sequencer/realtime.hpp"
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/mman.h>
+
+#include <cerrno>
+#include <cstring>
+
+namespace slscand {
+
+namespace {
+#if defined(__SANITIZE_ADDRESS__)
+constexpr bool kAddressSanitizer = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+constexpr bool kAddressSanitizer = true;
+#else
+constexpr bool kAddressSanitizer = false;
+#endif
+#else
+constexpr bool kAddressSanitizer = false;
+#endif
+}  // namespace
+
+RealtimeResult enter_realtime(int priority, int cpu) {
+  RealtimeResult result;
+  if (kAddressSanitizer) {
+    // ASan reserves terabytes of shadow memory; locking it would exhaust RAM.
+    result.warnings += "mlockall skipped in an AddressSanitizer build; ";
+  } else if (::mlockall(MCL_CURRENT | MCL_FUTURE) == 0) {
+    result.memory_locked = true;
+  } else {
+    result.warnings += std::string("mlockall failed (") + std::strerror(errno) +
+                       "): page faults may delay triggers (needs CAP_IPC_LOCK or a higher RLIMIT_MEMLOCK); ";
+  }
+  sched_param param{};
+  param.sched_priority = priority;
+  if (const int rv = ::pthread_setschedparam(::pthread_self(), SCHED_FIFO, &param); rv == 0) {
+    result.fifo = true;
+  } else {
+    result.warnings += std::string("SCHED_FIFO refused (") + std::strerror(rv) +
+                       "): the sequencer runs at normal priority and its timing jitter will be larger (needs "
+                       "CAP_SYS_NICE or an RLIMIT_RTPRIO >= " + std::to_string(priority) + "); ";
+  }
+  if (cpu >= 0) {
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    CPU_SET(cpu, &set);
+    if (const int rv = ::pthread_setaffinity_np(::pthread_self(), sizeof set, &set); rv == 0) {
+      result.pinned = true;
+    } else {
+      result.warnings += "cannot pin the sequencer to CPU " + std::to_string(cpu) + " (" + std::strerror(rv) + "); ";
+    }
+  }
+  return result;
+}
+
+}  // namespace slscand

@@ -1,0 +1,71 @@
+#include "slscand/sequencer/scan_plan.hpp"
+
+#include <string>
+
+namespace slscand {
+
+using slproto::Errc;
+using slproto::make_error;
+
+slproto::pb::PixelFormat to_proto(hal::PixelFormat format) noexcept {
+  switch (format) {
+    case hal::PixelFormat::mono8: return slproto::pb::PIXEL_FORMAT_MONO8;
+    case hal::PixelFormat::mono10: return slproto::pb::PIXEL_FORMAT_MONO10;
+    case hal::PixelFormat::mono12: return slproto::pb::PIXEL_FORMAT_MONO12;
+  }
+  return slproto::pb::PIXEL_FORMAT_UNSPECIFIED;
+}
+
+slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request, const hal::BoardConfig& board,
+                                         const hal::CameraFormat& camera_format) {
+  auto refuse = [&](Errc code, const std::string& why) {
+    return make_error(code, "scan " + std::to_string(request.scan_id()) + " refused by board '" + board.name + "': " + why);
+  };
+  if (auto s = slproto::check_scan_request(request, 2); !s) return refuse(s.error().code, s.error().message);
+  auto config = slproto::from_proto(request.plan());
+  if (!config) return refuse(Errc::invalid_argument, config.error().message);
+  auto patterns = slproto::PatternPlan::make(*config);
+  if (!patterns) return refuse(Errc::invalid_argument, patterns.error().message);
+
+  ScanPlan plan;
+  plan.scan_id = request.scan_id();
+  plan.angles_deg.assign(request.turntable_angles_deg().begin(), request.turntable_angles_deg().end());
+  plan.projectors.assign(request.projectors().begin(), request.projectors().end());
+  plan.patterns = std::move(*patterns);
+  plan.exposure_ns = static_cast<Nanos>(request.exposure_us()) * kMicro;
+  plan.period_ns = static_cast<Nanos>(request.pattern_period_us()) * kMicro;
+  plan.trigger_delay_ns = static_cast<Nanos>(request.trigger_delay_us()) * kMicro;
+  plan.settle_ns = static_cast<Nanos>(request.settle_ms() != 0 ? request.settle_ms() : board.settle_ms * 1000) * kMicro;
+  plan.timing_events = request.timing_events();
+
+  // The DLP4500 shows one 8-bit pattern for at least 8333 us; 1-bit patterns go down to 235 us.
+  if (request.exposure_us() < 235) {
+    return refuse(Errc::unsupported, "exposure_us " + std::to_string(request.exposure_us()) +
+                                         " is below the projector's 235 us minimum");
+  }
+  if (plan.patterns.size() > 32) {
+    return refuse(Errc::unsupported, "the plan has " + std::to_string(plan.patterns.size()) +
+                                         " patterns; the projectors hold 32 8-bit patterns");
+  }
+  const double readout_us = board.readout_us;
+  const double needed_us = static_cast<double>(request.trigger_delay_us()) + request.exposure_us() + readout_us +
+                           board.sim_projector_latency_us * (board.is_sim() ? 1 : 0);
+  if (request.pattern_period_us() < needed_us) {
+    return refuse(Errc::unsupported, "pattern_period_us " + std::to_string(request.pattern_period_us()) +
+                                         " is shorter than trigger delay + exposure + read-out (" +
+                                         std::to_string(static_cast<long long>(needed_us)) + " us on this board)");
+  }
+  if (board.trigger_source == hal::CameraTriggerSource::projector && request.trigger_delay_us() != 0) {
+    return refuse(Errc::unsupported, "trigger_delay_us must be 0: on this board the projectors' TRIG_OUT_1 trigger the "
+                                     "camera directly");
+  }
+  if (request.pixel_format() != slproto::pb::PIXEL_FORMAT_UNSPECIFIED &&
+      request.pixel_format() != to_proto(camera_format.pixel_format)) {
+    return refuse(Errc::unsupported, std::string("pixel_format ") + slproto::pixel_format_name(request.pixel_format()) +
+                                         ": the camera is set up for " + hal::pixel_format_name(camera_format.pixel_format));
+  }
+  plan.pixel_format = camera_format.pixel_format;
+  return plan;
+}
+
+}  // namespace slscand

@@ -1,0 +1,273 @@
+#include "slscand/sequencer/sequencer.hpp"
+
+#include "slproto/calibration.hpp"
+
+#include <cmath>
+#include <deque>
+#include <optional>
+
+namespace slscand {
+
+using slproto::Errc;
+using slproto::make_error;
+namespace pb = slproto::pb;
+
+namespace {
+
+// A failure inside the loop: carries the cause out to the single clean-up path.
+struct Failure {
+  pb::ScanState state;
+  slproto::Error error;
+};
+
+// Sleeps until `deadline` in slices, so an abort is seen within a few milliseconds.
+bool sleep_until_or_abort(Nanos deadline, const std::atomic<bool>& abort) {
+  for (;;) {
+    if (abort.load()) return false;
+    const Nanos now = monotonic_now_ns();
+    if (now >= deadline) return true;
+    sleep_until_ns(std::min(deadline, now + 5 * kMilli));
+  }
+}
+
+}  // namespace
+
+pb::FrameHeader make_frame_header(const SequencedFrame& f, bool with_events) {
+  pb::FrameHeader h;
+  h.set_scan_id(f.scan_id);
+  h.set_view_index(f.view_index);
+  h.set_commanded_angle_deg(f.commanded_angle_deg);
+  h.set_reported_angle_deg(f.reported_angle_deg);
+  h.set_projector_id(f.projector_id);
+  h.set_pattern_index(f.pattern_index);
+  h.set_pattern_kind(static_cast<pb::PatternKind>(f.pattern.kind));
+  h.set_pattern_kind_index(f.pattern.index);
+  h.set_exposure_us(static_cast<std::uint32_t>(f.exposure_ns / kMicro));
+  h.set_trigger_ns(static_cast<std::uint64_t>(f.timing.trigger_ns));
+  h.set_exposure_start_ns(static_cast<std::uint64_t>(f.timing.exposure_start_ns));
+  h.set_exposure_end_ns(static_cast<std::uint64_t>(f.timing.exposure_end_ns));
+  h.set_readout_ns(static_cast<std::uint64_t>(f.timing.dequeued_ns));
+  h.set_sequence(f.sequence);
+  h.set_width(static_cast<std::uint32_t>(f.frame.format.width));
+  h.set_height(static_cast<std::uint32_t>(f.frame.format.height));
+  h.set_pixel_format(to_proto(f.frame.format.pixel_format));
+  h.set_stride_bytes(static_cast<std::uint32_t>(f.frame.format.stride_bytes));
+  if (with_events) {
+    for (const auto& e : f.events) {
+      pb::TimingEvent* out = h.add_timing_events();
+      out->set_kind(e.kind);
+      out->set_monotonic_ns(static_cast<std::uint64_t>(e.monotonic_ns));
+      out->set_source(e.source);
+    }
+  }
+  return h;
+}
+
+void Sequencer::make_safe(bool stop_turntable) {
+  for (auto& projector : devices_.projectors) {
+    if (projector) (void)projector->stop();
+  }
+  if (devices_.camera_trigger && board_.camera_trigger_line) {
+    (void)devices_.camera_trigger->set_value(*board_.camera_trigger_line, false);
+  }
+  if (devices_.camera) (void)devices_.camera->stop();
+  if (stop_turntable && devices_.turntable) (void)devices_.turntable->stop();
+}
+
+ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& out, const std::atomic<bool>& abort,
+                           const ProgressCallback& progress) {
+  ScanOutcome outcome;
+  const Nanos scan_start = monotonic_now_ns();
+  std::vector<TimingEvent> pending;  // events not yet attached to a frame
+  auto log = [&](pb::TimingEventKind kind, Nanos ns, std::uint32_t source = 0) {
+    const TimingEvent e{kind, ns, source};
+    outcome.events.push_back(e);
+    pending.push_back(e);
+  };
+  std::uint64_t frames_handed = 0;
+  auto report = [&](pb::ScanState state, std::uint32_t view, double angle, const std::string& text) {
+    if (!progress) return;
+    pb::Progress p;
+    p.set_scan_id(plan.scan_id);
+    p.set_state(state);
+    p.set_view_index(view);
+    p.set_view_count(static_cast<std::uint32_t>(plan.angles_deg.size()));
+    p.set_frames_sent(frames_handed);
+    p.set_frames_total(plan.frames_total());
+    p.set_turntable_angle_deg(angle);
+    p.set_text(text);
+    p.set_monotonic_ns(static_cast<std::uint64_t>(monotonic_now_ns()));
+    progress(p);
+  };
+  bool turntable_involved = false;
+
+  auto fail_if_aborted = [&]() -> std::optional<Failure> {
+    if (abort.load()) return Failure{pb::SCAN_STATE_ABORTED, make_error(Errc::aborted, "scan aborted")};
+    return std::nullopt;
+  };
+
+  auto body = [&]() -> std::optional<Failure> {
+    if (auto s = devices_.load_patterns(plan.patterns, plan.exposure_ns); !s) {
+      return Failure{pb::SCAN_STATE_FAILED, s.error()};
+    }
+    hal::Camera& camera = *devices_.camera;
+    if (auto s = camera.set_exposure_us(static_cast<double>(plan.exposure_ns) / kMicro); !s) {
+      return Failure{pb::SCAN_STATE_FAILED, s.error()};
+    }
+    if (auto s = camera.start(); !s) return Failure{pb::SCAN_STATE_FAILED, s.error()};
+    const Nanos ack_timeout = static_cast<Nanos>(board_.ack_timeout_ms * kMilli);
+    const Nanos frame_timeout = static_cast<Nanos>(board_.frame_timeout_ms * kMilli);
+    const Nanos move_timeout = static_cast<Nanos>(board_.move_timeout_s * kSecond);
+    std::optional<std::uint64_t> last_camera_sequence;
+
+    for (std::size_t v = 0; v < plan.angles_deg.size(); ++v) {
+      const auto view = static_cast<std::uint32_t>(v);
+      const double angle = plan.angles_deg[v];
+      report(pb::SCAN_STATE_MOVING, view, angle, "rotating to " + std::to_string(angle) + " deg");
+      log(pb::TIMING_EVENT_TURNTABLE_MOVE_START, monotonic_now_ns());
+      turntable_involved = true;
+      auto reached = devices_.turntable->rotate_to(angle, move_timeout);
+      if (!reached) return Failure{pb::SCAN_STATE_FAILED, reached.error()};
+      const Nanos stopped = monotonic_now_ns();
+      log(pb::TIMING_EVENT_TURNTABLE_MOVE_DONE, stopped);
+      turntable_involved = false;
+      if (auto f = fail_if_aborted()) return f;
+      report(pb::SCAN_STATE_SETTLING, view, *reached, "settling");
+      if (!sleep_until_or_abort(stopped + plan.settle_ns, abort)) return fail_if_aborted();
+      log(pb::TIMING_EVENT_SETTLE_DONE, monotonic_now_ns());
+      report(pb::SCAN_STATE_CAPTURING, view, *reached, "capturing");
+
+      for (const std::uint32_t projector_id : plan.projectors) {
+        hal::DlpProjector& projector = *devices_.projectors[projector_id];
+        if (auto s = projector.start(); !s) return Failure{pb::SCAN_STATE_FAILED, s.error()};
+        // Triggers and frames are pipelined: pattern i + 1 is triggered on time while frame i
+        // is still being read out (or rendered, on the sim board). Frames come back in order.
+        std::deque<SequencedFrame> awaiting;
+        auto collect = [&](Nanos wait_until, bool all) -> std::optional<Failure> {
+          while (!awaiting.empty()) {
+            SequencedFrame& item = awaiting.front();
+            const Nanos due = item.timing.shown_ns + plan.exposure_ns + frame_timeout;
+            const Nanos now = monotonic_now_ns();
+            const Nanos limit = all ? due : std::min(due, wait_until);
+            auto frame = camera.wait_frame(std::max<Nanos>(0, limit - now));
+            if (!frame) {
+              if (frame.error().code == Errc::timeout && monotonic_now_ns() < due) return std::nullopt;  // not yet
+              auto error = frame.error();
+              error.message = "camera timeout at view " + std::to_string(v) + ", " +
+                              slproto::projector_side_name(static_cast<slproto::ProjectorSide>(projector_id)) +
+                              " projector, pattern " + std::to_string(item.pattern_index) + ": " + error.message;
+              return Failure{pb::SCAN_STATE_FAILED, error};
+            }
+            // A frame exposed before its trigger is a free-running camera or a stale buffer.
+            if (frame->exposure_start_ns != 0 && frame->exposure_start_ns < item.timing.trigger_ns) {
+              return Failure{pb::SCAN_STATE_FAILED,
+                             make_error(Errc::hardware, "camera frame " + std::to_string(frame->sequence) +
+                                                            " was exposed before its trigger: is the camera in "
+                                                            "external trigger mode?")};
+            }
+            if (last_camera_sequence && frame->sequence != *last_camera_sequence + 1) {
+              return Failure{pb::SCAN_STATE_FAILED,
+                             make_error(Errc::hardware, "camera dropped " +
+                                                            std::to_string(frame->sequence - *last_camera_sequence - 1) +
+                                                            " frame(s) before frame " + std::to_string(frame->sequence))};
+            }
+            last_camera_sequence = frame->sequence;
+            item.timing.exposure_start_ns = frame->exposure_start_ns;
+            item.timing.exposure_end_ns = frame->exposure_end_ns;
+            item.timing.dequeued_ns = frame->dequeued_ns;
+            for (const auto& [kind, ns] : {std::pair{pb::TIMING_EVENT_EXPOSURE_START, frame->exposure_start_ns},
+                                           std::pair{pb::TIMING_EVENT_EXPOSURE_END, frame->exposure_end_ns},
+                                           std::pair{pb::TIMING_EVENT_FRAME_DEQUEUED, frame->dequeued_ns}}) {
+              const TimingEvent e{kind, ns, 0};
+              outcome.events.push_back(e);
+              item.events.push_back(e);
+            }
+            item.frame = std::move(*frame);
+            outcome.frames.push_back(item.timing);
+            // Back-pressure: a full queue blocks here, between patterns; the caller moves the
+            // remaining deadlines by the pause, so the pattern period stays what was asked.
+            if (out.full()) outcome.backpressure_pauses++;
+            if (!out.push(item, abort)) {
+              return fail_if_aborted().value_or(
+                  Failure{pb::SCAN_STATE_FAILED, make_error(Errc::internal, "frame queue closed")});
+            }
+            awaiting.pop_front();
+            frames_handed++;
+          }
+          return std::nullopt;
+        };
+
+        // The first trigger leaves a millisecond for the projector to arm its sequence.
+        Nanos t0 = monotonic_now_ns() + kMilli;
+        bool paused = false;
+        for (std::size_t i = 0; i < plan.patterns.size(); ++i) {
+          if (auto f = fail_if_aborted()) return f;
+          Nanos deadline = t0 + static_cast<Nanos>(i) * plan.period_ns;
+          // Use the wait for this deadline to pass finished frames on.
+          if (auto f = collect(deadline - 200 * kMicro, false)) return f;
+          if (const Nanos late = monotonic_now_ns() - deadline; late > 0 && i > 0) {
+            paused = true;  // held back by a full queue (or a slow camera): shift what follows
+            t0 += late;
+            deadline += late;
+          }
+          sleep_until_ns(deadline);
+          SequencedFrame item;
+          item.scan_id = plan.scan_id;
+          item.sequence = frames_handed + awaiting.size();
+          item.view_index = view;
+          item.commanded_angle_deg = angle;
+          item.reported_angle_deg = *reached;
+          item.projector_id = projector_id;
+          item.pattern_index = static_cast<std::uint32_t>(i);
+          item.pattern = plan.patterns[i];
+          item.exposure_ns = plan.exposure_ns;
+          FrameTiming& timing = item.timing;
+          timing.view_index = view;
+          timing.projector_id = projector_id;
+          timing.pattern_index = static_cast<std::uint32_t>(i);
+          timing.deadline_ns = deadline;
+          timing.paused_before = paused;
+          paused = false;
+          auto trigger = projector.advance();
+          if (!trigger) return Failure{pb::SCAN_STATE_FAILED, trigger.error()};
+          timing.trigger_ns = *trigger;
+          log(pb::TIMING_EVENT_PROJECTOR_TRIGGER, *trigger, projector_id);
+          if (devices_.camera_trigger) {
+            sleep_until_ns(*trigger + plan.trigger_delay_ns);
+            if (auto s = devices_.camera_trigger->set_value(*board_.camera_trigger_line, true); !s) {
+              return Failure{pb::SCAN_STATE_FAILED, s.error()};
+            }
+            log(pb::TIMING_EVENT_CAMERA_TRIGGER, monotonic_now_ns());
+          }
+          auto shown = projector.wait_exposure_start(ack_timeout);
+          if (devices_.camera_trigger) (void)devices_.camera_trigger->set_value(*board_.camera_trigger_line, false);
+          if (!shown) return Failure{pb::SCAN_STATE_FAILED, shown.error()};
+          timing.shown_ns = shown->timestamp_ns;
+          log(pb::TIMING_EVENT_PATTERN_SHOWN, shown->timestamp_ns, projector_id);
+          item.events = std::move(pending);
+          pending.clear();
+          awaiting.push_back(std::move(item));
+        }
+        if (auto f = collect(0, true)) return f;
+        if (auto s = projector.stop(); !s) return Failure{pb::SCAN_STATE_FAILED, s.error()};
+      }
+      outcome.views_completed++;
+    }
+    return std::nullopt;
+  };
+
+  std::optional<Failure> failure = body();
+  // One clean-up path for every ending.
+  make_safe(failure.has_value() && (turntable_involved || failure->state == pb::SCAN_STATE_ABORTED));
+  outcome.frames_captured = frames_handed;
+  outcome.duration_ns = monotonic_now_ns() - scan_start;
+  if (failure) {
+    outcome.state = failure->state;
+    outcome.error = failure->error;
+  } else {
+    outcome.state = pb::SCAN_STATE_DONE;
+  }
+  return outcome;
+}
+
+}  // namespace slscand

@@ -1,0 +1,97 @@
+// slscan: the host command. A thin table of subcommands over the run_* functions.
+#include <CLI/CLI.hpp>
+#include <iostream>
+
+#include "run.hpp"
+#include "slscan/io/ply.hpp"
+
+namespace {
+
+using namespace slscan::app;
+
+std::pair<std::string, std::uint16_t> split_host_port(const std::string& text) {
+  const auto colon = text.rfind(':');
+  if (colon == std::string::npos) return {text, 5025};
+  const int port = std::stoi(text.substr(colon + 1));
+  if (port <= 0 || port > 65535) throw std::invalid_argument("port out of range in '" + text + "'");
+  return {text.substr(0, colon), static_cast<std::uint16_t>(port)};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"slscan: structured-light 3D scanning host (scan, reprocess, calibrate, measure, demo)"};
+  app.require_subcommand(1);
+  Console console;
+  app.add_flag("-q,--quiet", console.quiet, "Print nothing but errors and the final figures");
+  app.add_flag("--json-log", console.json_log, "Log as one JSON object per line on stderr");
+
+  ReprocessRequest reprocess;
+  auto* reprocess_cmd = app.add_subcommand("reprocess", "Reconstruct a recorded capture file");
+  reprocess_cmd->add_option("capture", reprocess.capture_path, "Capture file (.slcap)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  reprocess_cmd->add_option("--calib", reprocess.calibration_path, "Calibration file (JSON)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  reprocess_cmd->add_option("--out", reprocess.output_dir, "Output folder")->required();
+  reprocess_cmd->add_option("--config", reprocess.config_path, "Reconstruction parameters (JSON)")
+      ->check(CLI::ExistingFile);
+
+  ScanCommand scan;
+  std::string connect = "127.0.0.1:5025";
+  auto* scan_cmd = app.add_subcommand("scan", "Scan with a connected scanner, record the capture and reconstruct it");
+  scan_cmd->add_option("--connect", connect, "Scanner address HOST:PORT")->capture_default_str();
+  scan_cmd->add_option("--calib", scan.calibration_path, "Calibration file (JSON)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  scan_cmd->add_option("--out", scan.output_dir, "Output folder")->required();
+  scan_cmd->add_option("--config", scan.config_path, "Reconstruction parameters (JSON)")->check(CLI::ExistingFile);
+  scan_cmd->add_option("--angles", scan.angles_deg, "Turntable angles in degrees")->capture_default_str();
+  scan_cmd->add_option("--projectors", scan.projectors, "Projector ids (0 left, 1 right)")->capture_default_str();
+  scan_cmd->add_option("--exposure-us", scan.exposure_us, "Exposure per pattern")->capture_default_str();
+  scan_cmd->add_option("--period-us", scan.pattern_period_us, "Pattern period")->capture_default_str();
+  scan_cmd->add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
+  scan_cmd->add_option("--token-file", scan.token_file, "File holding the scanner's shared token");
+
+  MeasureCommand measure;
+  auto* measure_cmd = app.add_subcommand("measure", "Fit an artefact in a model and print its figures");
+  measure_cmd->add_option("model", measure.model_path, "Point cloud (PLY)")->required()->check(CLI::ExistingFile);
+  bool want_ballbar = false, want_sphere = false, want_plane = false;
+  auto* ballbar_flag = measure_cmd->add_flag("--ballbar", want_ballbar,
+                                             "Two spheres: diameters, form errors, centre distance (default)");
+  auto* sphere_flag = measure_cmd->add_flag("--sphere", want_sphere, "One sphere: diameter and form error");
+  auto* plane_flag = measure_cmd->add_flag("--plane", want_plane, "A plane: flatness");
+  ballbar_flag->excludes(sphere_flag)->excludes(plane_flag);
+  sphere_flag->excludes(plane_flag);
+  measure_cmd->add_option("--reference-mm", measure.reference_distance_mm, "Ball bar's calibrated centre distance")
+      ->capture_default_str();
+  measure_cmd->add_flag("--json", measure.json, "Print the figures as JSON");
+
+  CLI11_PARSE(app, argc, argv);
+  install_interrupt_handler();
+  try {
+    if (*reprocess_cmd) return run_reprocess(reprocess, console);
+    if (*scan_cmd) {
+      std::tie(scan.host, scan.port) = split_host_port(connect);
+      return run_scan(scan, console);
+    }
+    if (*measure_cmd) {
+      measure.artefact = want_sphere ? Artefact::sphere : (want_plane ? Artefact::plane : Artefact::ball_bar);
+      return run_measure(measure, console);
+    }
+  } catch (const slscan::io::IoError& e) {
+    std::cerr << "slscan: " << e.what() << "\n";
+    return exit_bad_input;
+  } catch (const std::invalid_argument& e) {
+    std::cerr << "slscan: " << e.what() << "\n";
+    return exit_bad_input;
+  } catch (const DeviceError& e) {
+    std::cerr << "slscan: " << e.what() << "\n";
+    return exit_device;
+  } catch (const std::exception& e) {
+    std::cerr << "slscan: internal error: " << e.what() << "\n";
+    return exit_internal;
+  }
+  return exit_usage;
+}

@@ -1,0 +1,32 @@
+// What a reconstruction leaves in its output folder: the fused model (PLY), the mesh (PLY and
+// STL), per-view clouds, report.json, and pictures (per-view depth, quality and fusion-source
+// maps, previews of the model). Every file is written to a temporary name and renamed.
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+
+#include "slscan/core/measure.hpp"
+#include "slscan/core/scan_reconstruction.hpp"
+
+namespace slscan::app {
+
+nlohmann::json scan_result_to_json(const core::ScanResult& result);
+nlohmann::json ball_bar_to_json(const core::BallBarResult& ball_bar);
+
+struct OutputFiles {
+  std::string model_ply, mesh_ply, mesh_stl, report_json;
+  std::vector<std::string> pictures;
+};
+
+// Writes everything into `dir` (created if needed). `report` is completed with the scan's
+// figures and written last, as report.json.
+OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, nlohmann::json report);
+
+// A shaded splat rendering of a cloud with normals, seen from `azimuth_deg` around +z and
+// `elevation_deg` above the xy plane; 8-bit grey, `size` x `size`.
+std::vector<unsigned char> render_preview_png(const core::PointCloud& cloud, double azimuth_deg, double elevation_deg,
+                                              int size);
+
+}  // namespace slscan::app

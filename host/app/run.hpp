@@ -1,0 +1,79 @@
+// The work behind each subcommand, as functions the tests call too (the CLI is a thin table
+// of subcommands over these).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "slscan/core/scan_reconstruction.hpp"
+
+namespace slscan::app {
+
+// Documented exit codes (docs/cli.md).
+enum ExitCode : int {
+  exit_ok = 0,
+  exit_usage = 1,         // bad command line (CLI11 prints why)
+  exit_bad_input = 2,     // unreadable, corrupt or inconsistent input file or configuration
+  exit_device = 3,        // the scanner: connection, protocol, board-side errors
+  exit_measurement = 4,   // the artefact could not be found or fitted
+  exit_internal = 5,      // a bug
+  exit_interrupted = 130  // Ctrl-C
+};
+
+// Thrown for problems with the scanner itself (connection, protocol, board errors).
+class DeviceError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct Console {
+  bool quiet = false;
+  bool json_log = false;  // one JSON object per line on stderr instead of text
+  void info(const std::string& text) const;
+  void warn(const std::string& text) const;
+  // A progress line for long steps (redrawn in place on a terminal).
+  void progress(const std::string& stage, std::size_t done, std::size_t total) const;
+  void end_progress() const;
+};
+
+// Set by the SIGINT handler; long loops poll it.
+extern std::atomic<bool> interrupted;
+void install_interrupt_handler();
+
+struct ReprocessRequest {
+  std::string capture_path;
+  std::string calibration_path;
+  std::string output_dir;
+  std::string config_path;  // "" = defaults
+};
+int run_reprocess(const ReprocessRequest& request, const Console& console);
+
+struct ScanCommand {
+  std::string host = "127.0.0.1";
+  std::uint16_t port = 5025;
+  std::string calibration_path;
+  std::string output_dir;
+  std::string config_path;
+  std::vector<double> angles_deg{0, 60, 120, 180, 240, 300};
+  std::vector<std::uint32_t> projectors{0, 1};
+  std::uint32_t exposure_us = 8333;
+  std::uint32_t pattern_period_us = 10000;
+  std::uint32_t settle_ms = 200;
+  std::string token_file;  // shared secret for boards that listen on a network
+};
+int run_scan(const ScanCommand& command, const Console& console);
+
+enum class Artefact { ball_bar, sphere, plane };
+struct MeasureCommand {
+  std::string model_path;
+  Artefact artefact = Artefact::ball_bar;
+  double nominal_diameter_a_mm = 30.0008, nominal_diameter_b_mm = 30.0015;
+  double reference_distance_mm = 150.1164;
+  bool json = false;
+};
+int run_measure(const MeasureCommand& command, const Console& console);
+
+}  // namespace slscan::app

@@ -1,0 +1,55 @@
+// From images to corner observations: the checkerboard's inner corners in a camera image,
+// and each corner's projector coordinates from the decoded pattern maps in both axes through a
+// local homography fitted to the decoded pixels around the corner (Moreno and Taubin, "Simple,
+// accurate, and robust projector-camera calibration", 3DIMPVT 2012). The homography is the
+// right local model: near a corner the target is a plane, and camera pixel -> target plane ->
+// projector pixel is a homography up to the lenses' (slowly varying) distortion.
+#pragma once
+
+#include <array>
+#include <opencv2/core.hpp>
+#include <string>
+
+#include "slscan/core/calibration_target.hpp"
+#include "slscan/core/decode.hpp"
+
+namespace slscan::core {
+
+struct CornerDetectionOptions {
+  // cv::findChessboardCornersSB (sector based, sub-pixel by design); false: the classic
+  // findChessboardCorners followed by cornerSubPix.
+  bool sector_based = true;
+  int subpixel_half_window = 5;  // cornerSubPix window (classic detector only)
+};
+
+struct CornerDetection {
+  bool found = false;
+  std::string reason;  // why not, when !found
+  TargetView view;     // every inner corner, ids row-major as in CheckerboardTarget
+};
+
+// Finds all inner corners of `target` in an 8- or 16-bit single-channel image. A missing or
+// partly hidden board is not an error: found = false with the reason.
+CornerDetection detect_checkerboard(const cv::Mat& image, const CheckerboardTarget& target,
+                                    const CornerDetectionOptions& options = {});
+
+struct ProjectorCornerOptions {
+  // Half size of the square window of camera pixels around each corner; 0 picks 0.45 of the
+  // distance to the nearest neighbouring corner, so the window stays on the target's squares.
+  int half_window_px = 0;
+  int min_pixels = 24;                 // decoded pixels (both axes) needed in the window
+  double max_pixel_residual_px = 1.0;  // pixels farther than this from the first fit are dropped
+  double max_fit_rms_px = 0.5;         // a corner whose fit is worse than this is not used
+};
+
+struct ProjectorCorners {
+  TargetView view;  // projector (x, y) of the corners that could be measured
+  int rejected_few_pixels = 0, rejected_bad_fit = 0;
+  double mean_fit_rms_px = 0;  // RMS of the decoded pixels about their local homography
+};
+
+// `columns` and `rows` are the same camera view decoded along each axis (same size).
+ProjectorCorners projector_corners(const TargetView& camera_corners, const DecodedView& columns,
+                                   const DecodedView& rows, const ProjectorCornerOptions& options = {});
+
+}  // namespace slscan::core

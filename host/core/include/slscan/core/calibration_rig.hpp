@@ -1,0 +1,121 @@
+// The whole calibration (paper step 1) from a calibration capture held in memory: the camera,
+// both projectors and the turntable, with a report of every image used or skipped.
+//
+// The capture is an ordinary scan plan run by the firmware against a checkerboard:
+//  * free poses (target held or on a stand at >= 10 varied poses): at each, every projector
+//    shows the pattern plan along columns and along rows, so each corner gets both projector
+//    coordinates; a camera image (ambient or flood lit) is optional, the white frames serve;
+//  * turntable poses (target lying on the platform, >= 6 table angles): a camera image is
+//    enough; pattern frames, if present, also feed the projector calibration.
+// Images whose board is not found are reported and skipped; only too few usable poses is an
+// error (std::runtime_error naming the counts and the skipped images).
+#pragma once
+
+#include <array>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "slproto/calibration.hpp"
+#include "slproto/pattern_plan.hpp"
+#include "slscan/core/calibration_corners.hpp"
+#include "slscan/core/calibration_solve.hpp"
+#include "slscan/core/decode.hpp"
+
+namespace slscan::core {
+
+struct CalibrationPose {
+  std::string name;           // for reports; "pose <index>" when empty
+  bool on_turntable = false;  // the target lies on the platform at table_angle_deg
+  double table_angle_deg = 0;
+};
+
+// One camera frame of the capture. `image` is CV_8UC1 or CV_16UC1 (bit depth as in
+// CalibrationCapture); it may wrap the caller's buffer (no copy is made).
+struct CalibrationFrame {
+  int pose = 0;  // index into CalibrationCapture::poses
+  enum class Kind : std::uint8_t { camera, pattern } kind = Kind::pattern;
+  slproto::ProjectorSide side = slproto::ProjectorSide::left;  // pattern frames only
+  slproto::CodingAxis axis = slproto::CodingAxis::columns;     // pattern frames only
+  std::size_t pattern_index = 0;                               // into the plan for `axis` (pattern frames only)
+  cv::Mat image;
+};
+
+struct CalibrationCapture {
+  CheckerboardTarget target;
+  // The scan's pattern plan; the capture shows it along both axes (the plan for an axis is
+  // this config with `axis` set). The calibration file records it.
+  slproto::PatternPlanConfig pattern_plan;
+  int bit_depth = 8;
+  double platform_radius_mm = 150;  // not measurable from the target: from the rig's spec
+  std::vector<CalibrationPose> poses;
+  std::vector<CalibrationFrame> frames;
+  std::string source;  // the capture it came from (path or description), written to the file
+
+  // The plan along one axis.
+  slproto::PatternPlan plan(slproto::CodingAxis axis) const;
+};
+
+struct CalibrationOptions {
+  LensModelOptions camera_lens;
+  LensModelOptions projector_lens;
+  CornerDetectionOptions detection;
+  ProjectorCornerOptions projector_corners;
+  DecodeOptions decode;  // bit_depth is taken from the capture
+  int min_camera_views = 10;
+  int min_projector_views = 6;
+  int min_turntable_views = 3;  // 6 recommended: every scan angle
+  bool turntable = true;        // false: no turntable poses expected (camera and projectors only)
+  std::string created_by = "slscan calibrate";
+};
+
+struct PoseReport {
+  std::string name;
+  bool on_turntable = false;
+  double table_angle_deg = 0;
+  bool board_found = false;
+  double camera_rms_px = -1;                       // -1: not used
+  std::array<int, 2> projector_corners{0, 0};      // corners with projector coordinates, per side
+  std::array<double, 2> projector_rms_px{-1, -1};  // -1: not used for that projector
+  std::array<double, 2> local_fit_rms_px{-1, -1};  // decoded pixels about their local homographies
+};
+
+struct SkippedImage {
+  std::string pose;
+  std::string what;  // "camera image", "left projector", ...
+  std::string reason;
+};
+
+struct TurntableStep {
+  std::string pose;
+  double commanded_deg = 0;    // relative to the first turntable pose
+  double measured_deg = 0;     // relative to the first turntable pose
+  double step_deg = 0;         // turned since the previous pose (0 for the first)
+  double residual_mm = 0;      // the pose's own corners vs the fitted rotation (RMS, mm)
+  double reprojection_px = 0;  // of the fitted rotation
+  bool corner_order_reversed = false;
+};
+
+struct CalibrationReport {
+  std::vector<PoseReport> poses;
+  std::vector<SkippedImage> skipped;
+  std::vector<TurntableStep> turntable;
+  int camera_views = 0;
+  std::array<int, 2> projector_views{0, 0};
+  double camera_rms_px = 0;
+  std::array<double, 2> projector_rms_px{0, 0};
+  double turntable_rms_px = 0;
+  double target_tilt_deg = 0;  // target normal vs the axis (a target not lying flat)
+
+  // Human-readable summary (what `slscan calibrate` prints).
+  std::string summary() const;
+};
+
+struct RigCalibrationResult {
+  slproto::RigCalibration calibration;
+  CalibrationReport report;
+};
+
+RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const CalibrationOptions& options = {});
+
+}  // namespace slscan::core

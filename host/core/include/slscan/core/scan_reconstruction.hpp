@@ -1,0 +1,131 @@
+// The whole reconstruction of one scan, fed frame by frame in stream order: each
+// projector-view is decoded and triangulated on a worker while the next one streams in; each
+// view is fused, cleaned and given normals as soon as both projectors are done; finish()
+// registers the views, cleans the merged model and meshes it. No I/O: the live scan and
+// reprocessing feed the same object the same frames and get the same result, bit for bit.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "slproto/calibration.hpp"
+#include "slproto/pattern_plan.hpp"
+#include "slscan/core/cloud_filters.hpp"
+#include "slscan/core/decode.hpp"
+#include "slscan/core/fusion.hpp"
+#include "slscan/core/mesh.hpp"
+#include "slscan/core/normals.hpp"
+#include "slscan/core/point_cloud.hpp"
+#include "slscan/core/registration.hpp"
+#include "slscan/core/triangulate.hpp"
+#include "slscan/core/turntable_denoise.hpp"
+
+namespace slscan::core {
+
+struct ReconstructionOptions {
+  DecodeOptions decode;
+  TriangulateOptions triangulate;
+  FusionOptions fusion;
+  FlyingPixelOptions flying_pixels;
+  TurntableDenoiseOptions turntable_denoise;
+  GridNormalOptions grid_normals;
+  bool register_views = true;  // false: coarse turntable poses only
+  RegistrationOptions registration;
+  bool remove_outliers = true;
+  StatisticalOutlierOptions outliers;
+  double voxel_mm = 0;  // > 0: thin the merged model to one point per voxel
+  int normal_neighbors = 20;
+  bool build_mesh = true;
+  PoissonOptions mesh;
+  int max_pending_projector_views = 3;  // decoders in flight (each holds one view's frames)
+
+  void check() const;  // throws std::invalid_argument naming the field
+};
+
+// Where a fused pixel came from.
+enum class FusionSource : std::uint8_t { none = 0, left = 1, right = 2, both = 3, rejected = 4 };
+
+struct ProjectorViewReport {
+  bool present = false;
+  DecodeCounts decode;
+  TriangulateCounts triangulate;
+  double decode_ms = 0, triangulate_ms = 0;
+};
+
+struct ViewReport {
+  int view_index = 0;
+  double commanded_angle_deg = 0, reported_angle_deg = 0;
+  std::array<ProjectorViewReport, 2> projectors;
+  FusionCounts fusion;
+  FlyingPixelCounts flying_pixels;
+  TurntableDenoiseCounts turntable_denoise;
+  std::size_t points = 0;  // in the view's cloud after cleaning
+  double fuse_ms = 0;
+};
+
+// What a view leaves for reports and pictures (camera frame of that view).
+struct ViewProducts {
+  OrganizedCloud cloud;              // fused, flying pixels and turntable removed
+  std::vector<FusionSource> source;  // per pixel
+  PointCloud points;                 // cloud's valid points with grid normals
+};
+
+struct ScanResult {
+  std::vector<ViewReport> views;
+  std::vector<ViewProducts> view_products;
+  RegistrationResult registration;
+  bool registered = false;         // false: coarse turntable poses only
+  std::string registration_error;  // why fine registration was not applied, if it failed
+  PointCloud model;                // turntable frame, normals outward, confidence and view id kept
+  std::size_t merged_points = 0, outliers_removed = 0;
+  bool meshed = false;
+  MeshResult mesh;
+  std::map<std::string, double> stage_ms;  // wall time of each stage after the last frame
+};
+
+struct FrameInfo {
+  int view_index = 0;
+  double commanded_angle_deg = 0;
+  double reported_angle_deg = 0;
+  int projector = 0;              // 0 left, 1 right
+  std::size_t pattern_index = 0;  // position in the pattern plan
+  std::size_t stride_bytes = 0;
+  int bytes_per_pixel = 1;  // 1 (8-bit) or 2 (uint16)
+};
+
+class ScanReconstructor {
+ public:
+  // Throws std::invalid_argument on an impossible calibration, plan or size, or a camera size
+  // that differs from the calibration's.
+  ScanReconstructor(const slproto::RigCalibration& calibration, const slproto::PatternPlan& plan, int width, int height,
+                    const ReconstructionOptions& options = {});
+  ~ScanReconstructor();
+  ScanReconstructor(const ScanReconstructor&) = delete;
+  ScanReconstructor& operator=(const ScanReconstructor&) = delete;
+
+  // One camera frame. Views and projectors may arrive in any order, but a view's frames must
+  // all arrive before finish(). Throws std::invalid_argument naming what is wrong (projector id,
+  // pattern index, size, a view whose angle changed between frames).
+  void add_frame(const FrameInfo& info, std::span<const std::byte> pixels);
+
+  // Number of projector-views completed so far (decoded and triangulated or queued).
+  std::size_t completed_projector_views() const;
+
+  // Waits for the workers, then fuses what is left, registers, cleans and meshes. Views that
+  // lack a projector's frames are reconstructed from the projector that is complete; a view
+  // with no complete projector is skipped and counted in `incomplete_views`.
+  ScanResult finish();
+  std::vector<int> incomplete_views() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace slscan::core

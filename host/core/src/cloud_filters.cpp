@@ -1,0 +1,221 @@
+#include "slscan/core/cloud_filters.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/parallel_sort.h>
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+#include "cloud_filters_kdtree.hpp"
+
+namespace slscan::core {
+namespace {
+
+void check_channels(const PointCloud& cloud, const char* who) {
+  const auto n = cloud.size();
+  auto bad = [&](std::size_t m) { return m != 0 && m != n; };
+  if (bad(cloud.normals.size()) || bad(cloud.confidence.size()) || bad(cloud.view_id.size()))
+    throw std::invalid_argument(
+        std::string(who) + ": cloud of " + std::to_string(n) + " points has " + std::to_string(cloud.normals.size()) +
+        " normals, " + std::to_string(cloud.confidence.size()) + " confidences and " +
+        std::to_string(cloud.view_id.size()) + " view ids (each must be 0 or " + std::to_string(n) + ")");
+  for (std::size_t i = 0; i < n; ++i)
+    if (!cloud.points[i].allFinite())
+      throw std::invalid_argument(std::string(who) + ": point " + std::to_string(i) + " is not finite");
+}
+
+FilterResult keep_flagged(const PointCloud& cloud, const std::vector<std::uint8_t>& keep) {
+  FilterResult result;
+  std::vector<std::size_t> kept;
+  kept.reserve(cloud.size());
+  for (std::size_t i = 0; i < keep.size(); ++i)
+    if (keep[i]) kept.push_back(i);
+  result.cloud = cloud.select(kept);
+  result.kept_indices.assign(kept.begin(), kept.end());
+  result.removed = cloud.size() - kept.size();
+  return result;
+}
+
+}  // namespace
+
+PointCloud to_point_cloud(const OrganizedCloud& cloud, std::uint16_t view_id,
+                          const std::vector<Eigen::Vector3f>* normals) {
+  if (cloud.valid.size() != cloud.points.size() || cloud.quality.size() != cloud.points.size())
+    throw std::invalid_argument("to_point_cloud: organised cloud has " + std::to_string(cloud.points.size()) +
+                                " points, " + std::to_string(cloud.valid.size()) + " validity flags and " +
+                                std::to_string(cloud.quality.size()) + " qualities");
+  if (normals && normals->size() != cloud.points.size())
+    throw std::invalid_argument("to_point_cloud: " + std::to_string(normals->size()) + " normals for " +
+                                std::to_string(cloud.points.size()) + " slots");
+  PointCloud out;
+  const std::size_t n = cloud.count_valid();
+  out.points.reserve(n);
+  out.confidence.reserve(n);
+  if (normals) out.normals.reserve(n);
+  for (std::size_t i = 0; i < cloud.points.size(); ++i) {
+    if (!cloud.valid[i] || !cloud.points[i].allFinite()) continue;
+    if (normals && !(*normals)[i].allFinite()) continue;
+    out.points.push_back(cloud.points[i]);
+    out.confidence.push_back(cloud.quality[i]);
+    if (normals) out.normals.push_back((*normals)[i]);
+  }
+  out.view_id.assign(out.points.size(), view_id);
+  return out;
+}
+
+PointCloud transform_cloud(const PointCloud& cloud, const Eigen::Isometry3d& target_from_source) {
+  PointCloud out = cloud;
+  const Eigen::Matrix3f R = target_from_source.linear().cast<float>();
+  const Eigen::Vector3d t = target_from_source.translation();
+  const Eigen::Matrix3d Rd = target_from_source.linear();
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cloud.size(), 8192),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                        out.points[i] = (Rd * cloud.points[i].cast<double>() + t).cast<float>();
+                        if (!out.normals.empty()) out.normals[i] = R * cloud.normals[i];
+                      }
+                    });
+  return out;
+}
+
+FilterResult statistical_outlier_removal(const PointCloud& cloud, const StatisticalOutlierOptions& options) {
+  if (options.k < 1) throw std::invalid_argument("statistical_outlier_removal: k must be >= 1");
+  if (!(options.std_ratio > 0)) throw std::invalid_argument("statistical_outlier_removal: std_ratio must be > 0");
+  check_channels(cloud, "statistical_outlier_removal");
+  const std::size_t n = cloud.size();
+  const auto k = static_cast<std::size_t>(options.k) + 1;  // the point itself comes first
+  if (n <= k) {
+    FilterResult all;
+    all.cloud = cloud;
+    for (std::size_t i = 0; i < n; ++i) all.kept_indices.push_back(static_cast<std::uint32_t>(i));
+    return all;
+  }
+  const detail::KdTree tree(cloud.points);
+  std::vector<float> mean_distance(n);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 2048), [&](const tbb::blocked_range<std::size_t>& r) {
+    std::vector<std::uint32_t> idx(k);
+    std::vector<float> d2(k);
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      const std::size_t found = tree.knn(cloud.points[i], k, idx.data(), d2.data());
+      float sum = 0;
+      for (std::size_t j = 1; j < found; ++j) sum += std::sqrt(d2[j]);
+      mean_distance[i] = sum / static_cast<float>(found - 1);
+    }
+  });
+  using Sums = std::pair<double, double>;
+  const Sums sums = tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, n, 8192), Sums{0, 0},
+      [&](const tbb::blocked_range<std::size_t>& r, Sums s) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+          s.first += mean_distance[i];
+          s.second += static_cast<double>(mean_distance[i]) * mean_distance[i];
+        }
+        return s;
+      },
+      [](Sums a, const Sums& b) {
+        return Sums{a.first + b.first, a.second + b.second};
+      });
+  const double mean = sums.first / static_cast<double>(n);
+  const double variance = std::max(0.0, (sums.second - sums.first * mean) / static_cast<double>(n - 1));
+  const double threshold = mean + options.std_ratio * std::sqrt(variance);
+  std::vector<std::uint8_t> keep(n);
+  for (std::size_t i = 0; i < n; ++i) keep[i] = mean_distance[i] <= threshold;
+  FilterResult result = keep_flagged(cloud, keep);
+  result.threshold = threshold;
+  return result;
+}
+
+FilterResult radius_outlier_removal(const PointCloud& cloud, const RadiusOutlierOptions& options) {
+  if (!(options.radius_mm > 0)) throw std::invalid_argument("radius_outlier_removal: radius_mm must be > 0");
+  if (options.min_neighbors < 0) throw std::invalid_argument("radius_outlier_removal: min_neighbors must be >= 0");
+  check_channels(cloud, "radius_outlier_removal");
+  const std::size_t n = cloud.size();
+  std::vector<std::uint8_t> keep(n, 1);
+  if (n > 0) {
+    const detail::KdTree tree(cloud.points);
+    const auto needed = static_cast<std::size_t>(options.min_neighbors) + 1;  // the point itself counts
+    const auto radius = static_cast<float>(options.radius_mm);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 2048), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t i = r.begin(); i < r.end(); ++i)
+        keep[i] = tree.count_within(cloud.points[i], radius, needed) >= needed;
+    });
+  }
+  FilterResult result = keep_flagged(cloud, keep);
+  result.threshold = options.radius_mm;
+  return result;
+}
+
+PointCloud voxel_downsample(const PointCloud& cloud, double voxel_mm) {
+  if (!(voxel_mm > 0) || !std::isfinite(voxel_mm))
+    throw std::invalid_argument("voxel_downsample: voxel_mm must be a positive number");
+  check_channels(cloud, "voxel_downsample");
+  const std::size_t n = cloud.size();
+  if (n == 0) return cloud;
+  // 21 bits per axis around the cloud's minimum corner.
+  Eigen::Vector3d lo = cloud.points[0].cast<double>();
+  for (const auto& p : cloud.points) lo = lo.cwiseMin(p.cast<double>());
+  const double inv = 1.0 / voxel_mm;
+  const Eigen::Vector3d anchor = (lo * inv).array().floor().matrix();
+  constexpr std::int64_t kMaxCell = (std::int64_t{1} << 21) - 1;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 8192), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      const Eigen::Vector3d c = (cloud.points[i].cast<double>() * inv).array().floor().matrix() - anchor;
+      std::uint64_t key = 0;
+      for (int a = 0; a < 3; ++a) {
+        const auto cell = static_cast<std::int64_t>(c[a]);
+        if (cell > kMaxCell)
+          throw std::invalid_argument("voxel_downsample: the cloud spans more than 2^21 voxels of " +
+                                      std::to_string(voxel_mm) + " mm along an axis");
+        key = (key << 21) | static_cast<std::uint64_t>(cell);
+      }
+      keyed[i] = {key, static_cast<std::uint32_t>(i)};
+    }
+  });
+  tbb::parallel_sort(keyed.begin(), keyed.end());
+  std::vector<std::size_t> starts;
+  for (std::size_t i = 0; i < n; ++i)
+    if (i == 0 || keyed[i].first != keyed[i - 1].first) starts.push_back(i);
+  starts.push_back(n);
+  const std::size_t m = starts.size() - 1;
+  PointCloud out;
+  out.points.resize(m);
+  if (cloud.has_normals()) out.normals.resize(m);
+  if (!cloud.confidence.empty()) out.confidence.resize(m);
+  if (!cloud.view_id.empty()) out.view_id.resize(m);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, m, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t v = r.begin(); v < r.end(); ++v) {
+      Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+      Eigen::Vector3f normal = Eigen::Vector3f::Zero();
+      double confidence = 0;
+      float best_confidence = -std::numeric_limits<float>::infinity();
+      std::uint16_t view = 0;
+      for (std::size_t j = starts[v]; j < starts[v + 1]; ++j) {
+        const std::uint32_t i = keyed[j].second;
+        sum += cloud.points[i].cast<double>();
+        if (cloud.has_normals()) normal += cloud.normals[i];
+        const float c = cloud.confidence.empty() ? 0.0f : cloud.confidence[i];
+        confidence += c;
+        if (!cloud.view_id.empty() && c > best_confidence) {
+          best_confidence = c;
+          view = cloud.view_id[i];
+        }
+      }
+      const auto count = static_cast<double>(starts[v + 1] - starts[v]);
+      out.points[v] = (sum / count).cast<float>();
+      if (cloud.has_normals()) {
+        const float len = normal.norm();
+        out.normals[v] = len > 0 ? Eigen::Vector3f(normal / len) : cloud.normals[keyed[starts[v]].second];
+      }
+      if (!cloud.confidence.empty()) out.confidence[v] = static_cast<float>(confidence / count);
+      if (!cloud.view_id.empty()) out.view_id[v] = view;
+    }
+  });
+  return out;
+}
+
+}  // namespace slscan::core

@@ -1,0 +1,361 @@
+#include "slscan/core/registration.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <numbers>
+#include <random>
+#include <stdexcept>
+#include <string>
+
+#include "cloud_filters_kdtree.hpp"
+
+namespace slscan::core {
+namespace {
+
+constexpr double kDegPerRad = 180.0 / std::numbers::pi;
+
+void check_view(const PointCloud& cloud, const std::string& name) {
+  if (cloud.size() == 0) throw std::invalid_argument(name + " is empty");
+  if (cloud.normals.size() != cloud.size())
+    throw std::invalid_argument(name + " has " + std::to_string(cloud.normals.size()) + " normals for " +
+                                std::to_string(cloud.size()) + " points (registration needs one per point)");
+  for (std::size_t i = 0; i < cloud.size(); ++i)
+    if (!cloud.points[i].allFinite())
+      throw std::invalid_argument(name + ": point " + std::to_string(i) + " is not finite");
+}
+
+void check_options(const IcpOptions& o) {
+  if (o.gates_mm.empty()) throw std::invalid_argument("ICP options: gates_mm is empty");
+  for (double g : o.gates_mm)
+    if (!(g > 0)) throw std::invalid_argument("ICP options: every gate must be > 0 mm");
+  if (!(o.max_normal_angle_deg > 0 && o.max_normal_angle_deg <= 180))
+    throw std::invalid_argument("ICP options: max_normal_angle_deg must be in (0, 180]");
+  if (o.max_iterations_per_stage < 1) throw std::invalid_argument("ICP options: max_iterations_per_stage must be >= 1");
+  if (o.source_points_per_view < 6) throw std::invalid_argument("ICP options: source_points_per_view must be >= 6");
+  if (!(o.outlier_mad_factor > 0)) throw std::invalid_argument("ICP options: outlier_mad_factor must be > 0");
+}
+
+// One view as ICP sees it: its cloud (own frame), a k-d tree over it, and the subsample of
+// points it sends as sources.
+struct ViewData {
+  const PointCloud* cloud = nullptr;
+  std::unique_ptr<detail::KdTree> tree;
+  std::vector<std::uint32_t> samples;
+};
+
+struct Correspondence {
+  Eigen::Vector3d a, b, m;  // source point, target point, mean of both normals: table frame
+  double r = 0;             // m . (a - b)
+};
+
+// Simultaneous point-to-plane adjustment of N poses over directed view pairs (source -> target).
+// Each pose is perturbed on the left, T <- (I + [w]x, v) T, so a point a = T p moves by w x a + v.
+class JointIcp {
+ public:
+  JointIcp(std::vector<ViewData>& views, std::vector<Eigen::Isometry3d>& poses, std::vector<bool> fixed,
+           std::vector<std::pair<int, int>> directed_pairs, const IcpOptions& options)
+      : views_(views), poses_(poses), fixed_(std::move(fixed)), pairs_(std::move(directed_pairs)), options_(options) {}
+
+  int run() {
+    int iterations = 0;
+    for (double gate : options_.gates_mm) {
+      for (int it = 0; it < options_.max_iterations_per_stage; ++it) {
+        ++iterations;
+        if (step(gate)) break;
+      }
+    }
+    return iterations;
+  }
+
+  // Correspondences of one directed pair at the current poses.
+  std::vector<Correspondence> correspondences(int source, int target, double gate) const {
+    const ViewData& s = views_[static_cast<std::size_t>(source)];
+    const ViewData& t = views_[static_cast<std::size_t>(target)];
+    const Eigen::Isometry3d& Ts = poses_[static_cast<std::size_t>(source)];
+    const Eigen::Isometry3d& Tt = poses_[static_cast<std::size_t>(target)];
+    const Eigen::Isometry3d target_from_source = Tt.inverse() * Ts;
+    const Eigen::Matrix3f R = target_from_source.linear().cast<float>();
+    const Eigen::Vector3f tr = target_from_source.translation().cast<float>();
+    const auto cos_max = static_cast<float>(std::cos(options_.max_normal_angle_deg / kDegPerRad));
+    const auto gatef = static_cast<float>(gate);
+    std::vector<Correspondence> found(s.samples.size());
+    std::vector<std::uint8_t> ok(s.samples.size(), 0);
+    tbb::parallel_for(
+        tbb::blocked_range<std::size_t>(0, s.samples.size(), 512), [&](const tbb::blocked_range<std::size_t>& r) {
+          for (std::size_t k = r.begin(); k < r.end(); ++k) {
+            const std::uint32_t i = s.samples[k];
+            const Eigen::Vector3f x = R * s.cloud->points[i] + tr;
+            float d2 = 0;
+            const std::int64_t j = t.tree->nearest_within(x, gatef, d2);
+            if (j < 0) continue;
+            const Eigen::Vector3f& nq = t.cloud->normals[static_cast<std::size_t>(j)];
+            if ((R * s.cloud->normals[i]).dot(nq) < cos_max) continue;
+            Correspondence c;
+            c.a = Ts * s.cloud->points[i].cast<double>();
+            c.b = Tt * t.cloud->points[static_cast<std::size_t>(j)].cast<double>();
+            // Symmetric point-to-plane (Rusinkiewicz 2019): the sum of both normals cancels, to first
+            // order, the bias a curved surface gives the one-sided residual at sparse sampling.
+            c.m = (Tt.linear() * nq.cast<double>() + Ts.linear() * s.cloud->normals[i].cast<double>()).normalized();
+            c.r = c.m.dot(c.a - c.b);
+            found[k] = c;
+            ok[k] = 1;
+          }
+        });
+    std::vector<Correspondence> kept;
+    kept.reserve(found.size());
+    for (std::size_t k = 0; k < found.size(); ++k)
+      if (ok[k]) kept.push_back(found[k]);
+    reject_outliers(kept);
+    return kept;
+  }
+
+ private:
+  // Drops residuals beyond outlier_mad_factor robust sigmas of the pair's median.
+  void reject_outliers(std::vector<Correspondence>& c) const {
+    if (c.size() < 8) return;
+    std::vector<double> r(c.size());
+    for (std::size_t i = 0; i < c.size(); ++i) r[i] = c[i].r;
+    auto mid = r.begin() + static_cast<std::ptrdiff_t>(r.size() / 2);
+    std::nth_element(r.begin(), mid, r.end());
+    const double median = *mid;
+    for (auto& x : r) x = std::abs(x - median);
+    std::nth_element(r.begin(), mid, r.end());
+    const double sigma = std::max(1.4826 * *mid, 1e-6);
+    const double limit = options_.outlier_mad_factor * sigma;
+    std::erase_if(c, [&](const Correspondence& x) { return std::abs(x.r - median) > limit; });
+  }
+
+  // One Gauss-Newton step over every pair; true when the update is below the thresholds.
+  bool step(double gate) {
+    const int n = static_cast<int>(poses_.size());
+    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(6 * n, 6 * n);
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(6 * n);
+    for (const auto& [s, t] : pairs_) {
+      const auto corr = correspondences(s, t, gate);
+      if (corr.size() < 6)
+        throw std::runtime_error("ICP: views " + std::to_string(s) + " and " + std::to_string(t) + " share only " +
+                                 std::to_string(corr.size()) + " correspondences within " + std::to_string(gate) +
+                                 " mm (too little overlap or too far from the coarse pose)");
+      Eigen::Matrix<double, 12, 12> h = Eigen::Matrix<double, 12, 12>::Zero();
+      Eigen::Matrix<double, 12, 1> gg = Eigen::Matrix<double, 12, 1>::Zero();
+      for (const auto& c : corr) {
+        Eigen::Matrix<double, 12, 1> j;
+        j << c.a.cross(c.m), c.m, -c.b.cross(c.m), -c.m;
+        h.noalias() += j * j.transpose();
+        gg += j * c.r;
+      }
+      const int blocks[2] = {s, t};
+      for (int x = 0; x < 2; ++x)
+        for (int y = 0; y < 2; ++y) H.block<6, 6>(6 * blocks[x], 6 * blocks[y]) += h.block<6, 6>(6 * x, 6 * y);
+      for (int x = 0; x < 2; ++x) g.segment<6>(6 * blocks[x]) += gg.segment<6>(6 * x);
+    }
+    // Fixed poses: identity rows so their update is zero.
+    for (int v = 0; v < n; ++v) {
+      if (!fixed_[static_cast<std::size_t>(v)]) continue;
+      H.middleRows(6 * v, 6).setZero();
+      H.middleCols(6 * v, 6).setZero();
+      H.block<6, 6>(6 * v, 6 * v).setIdentity();
+      g.segment<6>(6 * v).setZero();
+    }
+    // A whisper of damping keeps a symmetric object's free rotation from blowing up the solve.
+    const double damping = 1e-12 * std::max(1.0, H.diagonal().maxCoeff());
+    H.diagonal().array() += damping;
+    const Eigen::VectorXd delta = H.ldlt().solve(-g);
+    if (!delta.allFinite()) throw std::runtime_error("ICP: the normal equations are singular");
+    bool converged = true;
+    for (int v = 0; v < n; ++v) {
+      if (fixed_[static_cast<std::size_t>(v)]) continue;
+      const Eigen::Vector3d w = delta.segment<3>(6 * v);
+      const Eigen::Vector3d t = delta.segment<3>(6 * v + 3);
+      Eigen::Isometry3d update = Eigen::Isometry3d::Identity();
+      if (w.norm() > 0) update.linear() = Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix();
+      update.translation() = t;
+      poses_[static_cast<std::size_t>(v)] = update * poses_[static_cast<std::size_t>(v)];
+      // Re-orthonormalise so many small updates don't drift off SO(3).
+      Eigen::Quaterniond q(poses_[static_cast<std::size_t>(v)].linear());
+      poses_[static_cast<std::size_t>(v)].linear() = q.normalized().toRotationMatrix();
+      if (w.norm() * kDegPerRad > options_.converged_rotation_deg || t.norm() > options_.converged_translation_mm)
+        converged = false;
+    }
+    return converged;
+  }
+
+  std::vector<ViewData>& views_;
+  std::vector<Eigen::Isometry3d>& poses_;
+  std::vector<bool> fixed_;
+  std::vector<std::pair<int, int>> pairs_;
+  const IcpOptions& options_;
+};
+
+ViewData make_view(const PointCloud& cloud, std::size_t max_samples, std::uint64_t seed) {
+  ViewData v;
+  v.cloud = &cloud;
+  v.tree = std::make_unique<detail::KdTree>(cloud.points);
+  for (std::size_t i = 0; i < cloud.size(); ++i)
+    if (cloud.normals[i].allFinite()) v.samples.push_back(static_cast<std::uint32_t>(i));
+  if (v.samples.size() > max_samples) {
+    std::mt19937_64 rng(seed);
+    // Partial Fisher-Yates: the first max_samples entries become a uniform random subset.
+    for (std::size_t i = 0; i < max_samples; ++i) {
+      std::uniform_int_distribution<std::size_t> pick(i, v.samples.size() - 1);
+      std::swap(v.samples[i], v.samples[pick(rng)]);
+    }
+    v.samples.resize(max_samples);
+    std::sort(v.samples.begin(), v.samples.end());  // memory order: kinder to the caches
+  }
+  return v;
+}
+
+}  // namespace
+
+Eigen::Isometry3d to_isometry(const slproto::RigidTransform& transform) {
+  Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) out.linear()(r, c) = transform.R[static_cast<std::size_t>(3 * r + c)];
+    out.translation()[r] = transform.t[static_cast<std::size_t>(r)];
+  }
+  return out;
+}
+
+slproto::RigidTransform to_rigid_transform(const Eigen::Isometry3d& transform) {
+  slproto::RigidTransform out;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) out.R[static_cast<std::size_t>(3 * r + c)] = transform.linear()(r, c);
+    out.t[static_cast<std::size_t>(r)] = transform.translation()[r];
+  }
+  return out;
+}
+
+Eigen::Isometry3d coarse_table_from_view(const slproto::TurntableCalibration& turntable, double angle_deg) {
+  const Eigen::Isometry3d table_from_cam = to_isometry(turntable.cam_from_table).inverse();
+  return table_from_cam * to_isometry(turntable.rotation_in_camera(-angle_deg));
+}
+
+double rotation_angle_deg(const Eigen::Isometry3d& transform) {
+  return Eigen::AngleAxisd(transform.linear()).angle() * kDegPerRad;
+}
+
+double translation_mm(const Eigen::Isometry3d& transform) { return transform.translation().norm(); }
+
+IcpResult icp_point_to_plane(const PointCloud& source, const PointCloud& target,
+                             const Eigen::Isometry3d& initial_target_from_source, const IcpOptions& options) {
+  check_options(options);
+  check_view(source, "ICP source");
+  check_view(target, "ICP target");
+  std::vector<ViewData> views;
+  views.push_back(make_view(target, 0, options.seed));
+  views.push_back(make_view(source, options.source_points_per_view, options.seed));
+  std::vector<Eigen::Isometry3d> poses{Eigen::Isometry3d::Identity(), initial_target_from_source};
+  JointIcp icp(views, poses, {true, false}, {{1, 0}}, options);
+  IcpResult result;
+  result.iterations = icp.run();
+  result.target_from_source = poses[1];
+  const auto corr = icp.correspondences(1, 0, options.gates_mm.back());
+  double sum2 = 0;
+  for (const auto& c : corr) sum2 += c.r * c.r;
+  result.correspondences = corr.size();
+  result.residual_rms_mm = corr.empty() ? 0.0 : std::sqrt(sum2 / static_cast<double>(corr.size()));
+  return result;
+}
+
+RegistrationResult register_views(const std::vector<PointCloud>& views, const std::vector<double>& angles_deg,
+                                  const slproto::TurntableCalibration& turntable, const RegistrationOptions& options) {
+  check_options(options.icp);
+  if (views.size() != angles_deg.size())
+    throw std::invalid_argument("register_views: " + std::to_string(views.size()) + " views but " +
+                                std::to_string(angles_deg.size()) + " angles");
+  if (views.empty()) throw std::invalid_argument("register_views: no views");
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    check_view(views[i], "view " + std::to_string(i));
+    if (!std::isfinite(angles_deg[i]))
+      throw std::invalid_argument("register_views: angle of view " + std::to_string(i) + " is not finite");
+  }
+  if (auto s = turntable.cam_from_table.check("turntable.cam_from_table"); !s)
+    throw std::invalid_argument("register_views: " + s.error().message);
+
+  const int n = static_cast<int>(views.size());
+  RegistrationResult result;
+  result.views.resize(views.size());
+  std::vector<Eigen::Isometry3d> poses(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    poses[i] = coarse_table_from_view(turntable, angles_deg[i]);
+    result.views[i].coarse_table_from_view = poses[i];
+  }
+  std::vector<ViewData> data;
+  for (std::size_t i = 0; i < views.size(); ++i)
+    data.push_back(make_view(views[i], options.icp.source_points_per_view, options.icp.seed + i));
+
+  std::vector<std::pair<int, int>> neighbours;
+  for (int i = 0; i + 1 < n; ++i) neighbours.emplace_back(i, i + 1);
+  if (options.close_loop && n > 2) neighbours.emplace_back(n - 1, 0);
+
+  if (n > 1) {
+    if (options.mode == RefinementMode::joint) {
+      std::vector<std::pair<int, int>> directed;
+      for (auto [a, b] : neighbours) {
+        directed.emplace_back(a, b);
+        directed.emplace_back(b, a);
+      }
+      std::vector<bool> fixed(views.size(), false);
+      fixed[0] = true;
+      JointIcp icp(data, poses, fixed, directed, options.icp);
+      result.iterations = icp.run();
+    } else {
+      // Chain: register view i onto view i-1 (as placed so far), starting from their coarse
+      // relative pose.
+      for (int i = 1; i < n; ++i) {
+        std::vector<Eigen::Isometry3d> pair_poses{result.views[static_cast<std::size_t>(i - 1)].coarse_table_from_view,
+                                                  result.views[static_cast<std::size_t>(i)].coarse_table_from_view};
+        std::vector<ViewData> pair_data;
+        pair_data.push_back(make_view(views[static_cast<std::size_t>(i - 1)], options.icp.source_points_per_view,
+                                      options.icp.seed + static_cast<std::uint64_t>(i) - 1));
+        pair_data.push_back(make_view(views[static_cast<std::size_t>(i)], options.icp.source_points_per_view,
+                                      options.icp.seed + static_cast<std::uint64_t>(i)));
+        JointIcp icp(pair_data, pair_poses, {true, false}, {{1, 0}, {0, 1}}, options.icp);
+        result.iterations += icp.run();
+        const Eigen::Isometry3d prev_from_this = pair_poses[0].inverse() * pair_poses[1];
+        poses[static_cast<std::size_t>(i)] = poses[static_cast<std::size_t>(i - 1)] * prev_from_this;
+      }
+    }
+  }
+
+  // Residuals at the final poses and the last gate, per pair and per view.
+  std::vector<bool> all_fixed(views.size(), true);
+  const JointIcp evaluator(data, poses, all_fixed, {}, options.icp);
+  std::vector<double> view_sum2(views.size(), 0.0);
+  std::vector<std::size_t> view_count(views.size(), 0);
+  for (auto [a, b] : neighbours) {
+    double pair_sum2 = 0;
+    std::size_t pair_count = 0;
+    for (const auto& [s, t] : {std::pair{a, b}, std::pair{b, a}}) {
+      for (const auto& c : evaluator.correspondences(s, t, options.icp.gates_mm.back())) {
+        const double r2 = c.r * c.r;
+        pair_sum2 += r2;
+        ++pair_count;
+        view_sum2[static_cast<std::size_t>(s)] += r2;
+        view_sum2[static_cast<std::size_t>(t)] += r2;
+        ++view_count[static_cast<std::size_t>(s)];
+        ++view_count[static_cast<std::size_t>(t)];
+      }
+    }
+    result.pairs.push_back(
+        {a, b, pair_count ? std::sqrt(pair_sum2 / static_cast<double>(pair_count)) : 0.0, pair_count});
+  }
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    auto& v = result.views[i];
+    v.table_from_view = poses[i];
+    const Eigen::Isometry3d correction = poses[i] * v.coarse_table_from_view.inverse();
+    v.correction_deg = rotation_angle_deg(correction);
+    v.correction_mm = translation_mm(correction);
+    v.correspondences = view_count[i];
+    v.residual_rms_mm = view_count[i] ? std::sqrt(view_sum2[i] / static_cast<double>(view_count[i])) : 0.0;
+  }
+  return result;
+}
+
+}  // namespace slscan::core

@@ -1,0 +1,355 @@
+#include "slscan/core/scan_reconstruction.hpp"
+
+#include <tbb/task_group.h>
+
+#include <algorithm>
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+
+namespace slscan::core {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+}  // namespace
+
+void ReconstructionOptions::check() const {
+  decode.check();
+  triangulate.check();
+  fusion.check();
+  flying_pixels.check();
+  turntable_denoise.check();
+  if (voxel_mm < 0) throw std::invalid_argument("reconstruction options: voxel_mm must be >= 0");
+  if (normal_neighbors < 3) throw std::invalid_argument("reconstruction options: normal_neighbors must be >= 3");
+  if (max_pending_projector_views < 1)
+    throw std::invalid_argument("reconstruction options: max_pending_projector_views must be >= 1");
+}
+
+struct ScanReconstructor::Impl {
+  slproto::RigCalibration calibration;
+  slproto::PatternPlan plan;
+  int width = 0, height = 0;
+  ReconstructionOptions options;
+  std::array<std::unique_ptr<ProjectorTriangulator>, 2> triangulators;
+
+  struct ViewState {
+    double commanded_angle_deg = 0, reported_angle_deg = 0;
+    std::array<std::optional<TriangulatedView>, 2> triangulated;
+    ViewReport report;
+    ViewProducts products;
+    bool fused = false;
+  };
+
+  std::mutex mutex;  // guards everything below
+  std::condition_variable decoder_released;
+  std::vector<std::unique_ptr<ProjectorViewDecoder>> free_decoders;
+  int decoders_in_flight = 0;
+  std::map<std::pair<int, int>, std::unique_ptr<ProjectorViewDecoder>> receiving;  // (view, projector)
+  std::map<int, ViewState> views;
+  std::size_t completed = 0;
+  std::vector<int> incomplete;
+  tbb::task_group workers;
+
+  std::unique_ptr<ProjectorViewDecoder> acquire_decoder(std::unique_lock<std::mutex>& lock) {
+    decoder_released.wait(
+        lock, [&] { return !free_decoders.empty() || decoders_in_flight < options.max_pending_projector_views; });
+    ++decoders_in_flight;
+    if (!free_decoders.empty()) {
+      auto decoder = std::move(free_decoders.back());
+      free_decoders.pop_back();
+      decoder->reset();
+      return decoder;
+    }
+    return std::make_unique<ProjectorViewDecoder>(plan, width, height, options.decode);
+  }
+
+  void release_decoder(std::unique_ptr<ProjectorViewDecoder> decoder) {
+    {
+      std::lock_guard lock(mutex);
+      free_decoders.push_back(std::move(decoder));
+      --decoders_in_flight;
+    }
+    decoder_released.notify_all();
+  }
+
+  // Decodes and triangulates one complete projector-view, on a worker.
+  void process_projector_view(int view_index, int projector, std::unique_ptr<ProjectorViewDecoder> decoder) {
+    struct Release {
+      Impl* self;
+      std::unique_ptr<ProjectorViewDecoder>* decoder;
+      ~Release() { self->release_decoder(std::move(*decoder)); }
+    } release{this, &decoder};
+    ProjectorViewReport report;
+    report.present = true;
+    auto start = Clock::now();
+    DecodedView decoded = decoder->finish();
+    report.decode_ms = ms_since(start);
+    report.decode = decoded.counts;
+    start = Clock::now();
+    TriangulatedView triangulated = triangulators[static_cast<std::size_t>(projector)]->triangulate(decoded);
+    report.triangulate_ms = ms_since(start);
+    report.triangulate = triangulated.counts;
+
+    bool both_done = false;
+    {
+      std::lock_guard lock(mutex);
+      ViewState& view = views[view_index];
+      view.triangulated[static_cast<std::size_t>(projector)] = std::move(triangulated);
+      view.report.projectors[static_cast<std::size_t>(projector)] = report;
+      ++completed;
+      both_done = view.triangulated[0].has_value() && view.triangulated[1].has_value() && !view.fused;
+      if (both_done) view.fused = true;  // claimed by this worker
+    }
+    if (both_done) fuse_view(view_index);
+  }
+
+  // Fuses a view whose projector clouds are final; the caller has claimed it (fused = true).
+  void fuse_view(int view_index) {
+    ViewState* view = nullptr;
+    {
+      std::lock_guard lock(mutex);
+      view = &views.at(view_index);  // std::map: stable address
+    }
+    const auto start = Clock::now();
+    OrganizedCloud empty;
+    empty.resize(width, height);
+    const OrganizedCloud& left = view->triangulated[0] ? view->triangulated[0]->cloud : empty;
+    const OrganizedCloud& right = view->triangulated[1] ? view->triangulated[1]->cloud : empty;
+    FusionResult fused = fuse_left_right(left, right, options.fusion);
+    FlyingPixelResult unflown = remove_flying_pixels(fused.cloud, options.flying_pixels);
+    auto denoised = denoise_by_turntable(unflown.cloud, calibration.turntable, options.turntable_denoise);
+
+    ViewProducts products;
+    products.source.assign(left.size(), FusionSource::none);
+    for (std::size_t i = 0; i < left.size(); ++i) {
+      const bool l = left.valid[i] != 0, r = right.valid[i] != 0;
+      if (!l && !r) continue;
+      if (!fused.cloud.valid[i])
+        products.source[i] = FusionSource::rejected;
+      else
+        products.source[i] = l && r ? FusionSource::both : (l ? FusionSource::left : FusionSource::right);
+    }
+    const std::vector<Eigen::Vector3f> normals =
+        grid_normals(denoised.cloud, Eigen::Vector3f::Zero(), options.grid_normals);
+    products.points = to_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index), &normals);
+    products.cloud = std::move(denoised.cloud);
+
+    std::lock_guard lock(mutex);
+    view->report.fusion = fused.counts;
+    view->report.flying_pixels = unflown.counts;
+    view->report.turntable_denoise = denoised.counts;
+    view->report.points = products.points.size();
+    view->report.fuse_ms = ms_since(start);
+    view->products = std::move(products);
+    // The projector clouds are no longer needed; free their memory early.
+    view->triangulated[0].reset();
+    view->triangulated[1].reset();
+  }
+};
+
+ScanReconstructor::ScanReconstructor(const slproto::RigCalibration& calibration, const slproto::PatternPlan& plan,
+                                     int width, int height, const ReconstructionOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  options.check();
+  if (auto status = calibration.check(); !status) throw std::invalid_argument(status.error().message);
+  if (width != calibration.camera.width || height != calibration.camera.height)
+    throw std::invalid_argument("frames are " + std::to_string(width) + " x " + std::to_string(height) +
+                                " but the calibration's camera is " + std::to_string(calibration.camera.width) + " x " +
+                                std::to_string(calibration.camera.height));
+  if (plan.config().coded_extent() != (plan.config().axis == slproto::CodingAxis::columns
+                                           ? calibration.projectors[0].intrinsics.width
+                                           : calibration.projectors[0].intrinsics.height))
+    throw std::invalid_argument("the pattern plan codes " + std::to_string(plan.config().coded_extent()) +
+                                " projector pixels but the calibration's projector is " +
+                                std::to_string(calibration.projectors[0].intrinsics.width) + " x " +
+                                std::to_string(calibration.projectors[0].intrinsics.height));
+  impl_->calibration = calibration;
+  impl_->plan = plan;
+  impl_->width = width;
+  impl_->height = height;
+  impl_->options = options;
+  auto rays = std::make_shared<const CameraRayTable>(CameraRayTable::build(calibration.camera));
+  for (std::size_t side = 0; side < 2; ++side)
+    impl_->triangulators[side] = std::make_unique<ProjectorTriangulator>(rays, calibration.projectors[side],
+                                                                         plan.config().axis, options.triangulate);
+}
+
+ScanReconstructor::~ScanReconstructor() {
+  try {
+    impl_->workers.wait();
+  } catch (...) {  // NOLINT(bugprone-empty-catch): a destructor must not throw; finish() reports errors
+  }
+}
+
+void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::byte> pixels) {
+  Impl& s = *impl_;
+  const std::string where = "frame (view " + std::to_string(info.view_index) + ", projector " +
+                            std::to_string(info.projector) + ", pattern " + std::to_string(info.pattern_index) + ")";
+  if (info.projector != 0 && info.projector != 1)
+    throw std::invalid_argument(where + ": projector id must be 0 (left) or 1 (right)");
+  if (info.view_index < 0) throw std::invalid_argument(where + ": negative view index");
+  if (info.pattern_index >= s.plan.size())
+    throw std::invalid_argument(where + ": the pattern plan has only " + std::to_string(s.plan.size()) + " patterns");
+  const int expected_bpp = s.options.decode.bit_depth > 8 ? 2 : 1;
+  if (info.bytes_per_pixel != expected_bpp)
+    throw std::invalid_argument(where + ": " + std::to_string(info.bytes_per_pixel) + " bytes per pixel, expected " +
+                                std::to_string(expected_bpp) + " for " + std::to_string(s.options.decode.bit_depth) +
+                                "-bit decoding");
+  const std::size_t row_bytes = static_cast<std::size_t>(s.width) * static_cast<std::size_t>(expected_bpp);
+  if (info.stride_bytes < row_bytes || info.stride_bytes % static_cast<std::size_t>(expected_bpp) != 0)
+    throw std::invalid_argument(where + ": stride " + std::to_string(info.stride_bytes) + " bytes is impossible for " +
+                                std::to_string(s.width) + " pixels");
+  if (pixels.size() < info.stride_bytes * static_cast<std::size_t>(s.height - 1) + row_bytes)
+    throw std::invalid_argument(where + ": " + std::to_string(pixels.size()) + " bytes is short of a " +
+                                std::to_string(s.width) + " x " + std::to_string(s.height) + " frame");
+
+  std::unique_lock lock(s.mutex);
+  auto [view_it, inserted] = s.views.try_emplace(info.view_index);
+  Impl::ViewState& view = view_it->second;
+  if (inserted) {
+    view.commanded_angle_deg = info.commanded_angle_deg;
+    view.reported_angle_deg = info.reported_angle_deg;
+    view.report.view_index = info.view_index;
+    view.report.commanded_angle_deg = info.commanded_angle_deg;
+    view.report.reported_angle_deg = info.reported_angle_deg;
+  } else if (view.commanded_angle_deg != info.commanded_angle_deg) {
+    throw std::invalid_argument(where + ": commanded angle " + std::to_string(info.commanded_angle_deg) +
+                                " deg differs from the view's earlier frames (" +
+                                std::to_string(view.commanded_angle_deg) + " deg)");
+  }
+  const auto side = static_cast<std::size_t>(info.projector);
+  if (view.triangulated[side].has_value() || view.report.projectors[side].present)
+    throw std::invalid_argument(where + ": this projector-view is already complete");
+  const auto key = std::make_pair(info.view_index, info.projector);
+  auto it = s.receiving.find(key);
+  if (it == s.receiving.end()) it = s.receiving.emplace(key, s.acquire_decoder(lock)).first;
+  ProjectorViewDecoder& decoder = *it->second;
+  lock.unlock();  // the copy into the decoder's store runs without the lock
+  const std::size_t stride_pixels = info.stride_bytes / static_cast<std::size_t>(expected_bpp);
+  if (expected_bpp == 1) {
+    decoder.add_frame(info.pattern_index, reinterpret_cast<const std::uint8_t*>(pixels.data()), stride_pixels);
+  } else {
+    decoder.add_frame(info.pattern_index, reinterpret_cast<const std::uint16_t*>(pixels.data()), stride_pixels);
+  }
+  if (!decoder.complete()) return;
+  lock.lock();
+  auto owned = std::move(it->second);
+  s.receiving.erase(it);
+  view.report.projectors[side].present = true;
+  lock.unlock();
+  Impl* impl = impl_.get();
+  const int view_index = info.view_index, projector = info.projector;
+  // The decoder is moved into the task through a shared_ptr: tbb's task functors are copyable.
+  auto shared = std::make_shared<std::unique_ptr<ProjectorViewDecoder>>(std::move(owned));
+  s.workers.run([impl, view_index, projector, shared] {
+    impl->process_projector_view(view_index, projector, std::move(*shared));
+  });
+}
+
+std::size_t ScanReconstructor::completed_projector_views() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->completed;
+}
+
+std::vector<int> ScanReconstructor::incomplete_views() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->incomplete;
+}
+
+ScanResult ScanReconstructor::finish() {
+  Impl& s = *impl_;
+  auto start = Clock::now();
+  s.workers.wait();
+  ScanResult result;
+  result.stage_ms["wait_for_views"] = ms_since(start);
+
+  // Projector-views that never completed are dropped; their decoders go back to the pool.
+  {
+    std::lock_guard lock(s.mutex);
+    for (auto& [key, decoder] : s.receiving) {
+      s.free_decoders.push_back(std::move(decoder));
+      --s.decoders_in_flight;
+    }
+    s.receiving.clear();
+  }
+  start = Clock::now();
+  std::vector<int> to_fuse;
+  for (auto& [index, view] : s.views) {
+    if (view.fused) continue;
+    if (view.triangulated[0] || view.triangulated[1]) {
+      view.fused = true;
+      to_fuse.push_back(index);
+    } else {
+      s.incomplete.push_back(index);
+    }
+  }
+  for (int index : to_fuse) s.fuse_view(index);
+  result.stage_ms["fuse_remaining"] = ms_since(start);
+
+  std::vector<PointCloud> clouds;
+  std::vector<double> angles;
+  for (auto& [index, view] : s.views) {
+    if (std::find(s.incomplete.begin(), s.incomplete.end(), index) != s.incomplete.end()) continue;
+    result.views.push_back(view.report);
+    clouds.push_back(view.products.points);
+    angles.push_back(view.reported_angle_deg);
+    result.view_products.push_back(std::move(view.products));
+  }
+  if (clouds.empty()) return result;
+
+  start = Clock::now();
+  std::vector<Eigen::Isometry3d> table_from_view(clouds.size());
+  for (std::size_t i = 0; i < clouds.size(); ++i)
+    table_from_view[i] = coarse_table_from_view(s.calibration.turntable, angles[i]);
+  if (s.options.register_views && clouds.size() >= 2) {
+    try {
+      result.registration = register_views(clouds, angles, s.calibration.turntable, s.options.registration);
+      for (std::size_t i = 0; i < clouds.size(); ++i) table_from_view[i] = result.registration.views[i].table_from_view;
+      result.registered = true;
+    } catch (const std::runtime_error& e) {
+      result.registration_error = e.what();
+    }
+  }
+  result.stage_ms["register"] = ms_since(start);
+
+  start = Clock::now();
+  PointCloud merged;
+  for (std::size_t i = 0; i < clouds.size(); ++i) merged.append(transform_cloud(clouds[i], table_from_view[i]));
+  result.merged_points = merged.size();
+  if (s.options.remove_outliers && merged.size() > static_cast<std::size_t>(s.options.outliers.k) + 1) {
+    FilterResult filtered = statistical_outlier_removal(merged, s.options.outliers);
+    result.outliers_removed = filtered.removed;
+    merged = std::move(filtered.cloud);
+  }
+  result.stage_ms["outlier_removal"] = ms_since(start);
+  start = Clock::now();
+  if (s.options.voxel_mm > 0) merged = voxel_downsample(merged, s.options.voxel_mm);
+  result.stage_ms["voxel"] = ms_since(start);
+  start = Clock::now();
+  if (merged.size() >= static_cast<std::size_t>(s.options.normal_neighbors)) {
+    PcaNormalOptions normal_options;
+    normal_options.k = s.options.normal_neighbors;
+    normal_options.orientation = NormalOrientation::away_from_axis;  // turntable frame: axis = origin + z
+    merged.normals = pca_normals(merged, normal_options);
+  }
+  result.stage_ms["normals"] = ms_since(start);
+  result.model = std::move(merged);
+
+  start = Clock::now();
+  if (s.options.build_mesh && result.model.has_normals() && result.model.size() >= 100) {
+    result.mesh = poisson_mesh(result.model, s.options.mesh);
+    result.meshed = true;
+  }
+  result.stage_ms["mesh"] = ms_since(start);
+  return result;
+}
+
+}  // namespace slscan::core

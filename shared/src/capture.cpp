@@ -1,0 +1,315 @@
+#include "slproto/capture.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <sys/uio.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <utility>
+
+#include "slproto/crc32c.hpp"
+
+namespace slproto {
+namespace {
+
+constexpr std::array<std::byte, 8> capture_magic{std::byte{'S'}, std::byte{'L'},  std::byte{'C'},  std::byte{'A'},
+                                                 std::byte{'P'}, std::byte{'\r'}, std::byte{'\n'}, std::byte{0x1a}};
+constexpr std::size_t max_capture_header = 4096;
+
+std::string errno_text(int error) {
+  return std::string(std::strerror(error)) + " (errno " + std::to_string(error) + ")";
+}
+
+std::uint64_t get_le(const std::byte* p, int bytes) {
+  std::uint64_t v = 0;
+  for (int i = 0; i < bytes; ++i) v |= std::to_integer<std::uint64_t>(p[i]) << (8 * i);
+  return v;
+}
+void put_le(std::byte* p, std::uint64_t v, int bytes) {
+  for (int i = 0; i < bytes; ++i) p[i] = static_cast<std::byte>((v >> (8 * i)) & 0xFF);
+}
+
+struct CaptureHeaderInfo {
+  std::uint16_t protocol_version = 0;
+  std::uint32_t header_length = 0;
+  std::uint64_t created_unix_ns = 0;
+};
+
+Result<CaptureHeaderInfo> parse_capture_header(std::span<const std::byte> bytes, const std::string& name) {
+  if (bytes.size() < capture_header_size)
+    return make_error(Errc::truncated, name + ": capture file header: have " + std::to_string(bytes.size()) + " of " +
+                                           std::to_string(capture_header_size) + " bytes");
+  const std::byte* p = bytes.data();
+  if (!std::equal(capture_magic.begin(), capture_magic.end(), p))
+    return make_error(Errc::malformed, name + ": not a capture file (bad magic at offset 0)");
+  if (get_le(p + 28, 4) != crc32c(p, 28))
+    return make_error(Errc::bad_checksum, name + ": capture file header CRC mismatch (offset 28)");
+  const auto format = static_cast<std::uint16_t>(get_le(p + 8, 2));
+  if (format != capture_format_version)
+    return make_error(Errc::wrong_version, name + ": capture format version " + std::to_string(format) +
+                                               " not supported (this build reads " +
+                                               std::to_string(capture_format_version) + ") at offset 8");
+  CaptureHeaderInfo info;
+  info.protocol_version = static_cast<std::uint16_t>(get_le(p + 10, 2));
+  if (info.protocol_version < min_protocol_version || info.protocol_version > protocol_version)
+    return make_error(Errc::wrong_version, name + ": records use protocol version " +
+                                               std::to_string(info.protocol_version) + ", this build speaks " +
+                                               std::to_string(min_protocol_version) + ".." +
+                                               std::to_string(protocol_version) + " (offset 10)");
+  info.header_length = static_cast<std::uint32_t>(get_le(p + 12, 4));
+  if (info.header_length < capture_header_size || info.header_length > max_capture_header)
+    return make_error(Errc::malformed, name + ": capture header length " + std::to_string(info.header_length) +
+                                           " not in 32.." + std::to_string(max_capture_header) + " (offset 12)");
+  info.created_unix_ns = get_le(p + 16, 8);
+  return info;
+}
+
+}  // namespace
+
+std::array<std::byte, capture_header_size> capture_file_header(std::uint64_t unix_ns) {
+  std::array<std::byte, capture_header_size> out{};
+  std::copy(capture_magic.begin(), capture_magic.end(), out.begin());
+  put_le(&out[8], capture_format_version, 2);
+  put_le(&out[10], protocol_version, 2);
+  put_le(&out[12], capture_header_size, 4);
+  put_le(&out[16], unix_ns, 8);
+  put_le(&out[24], 0, 4);
+  put_le(&out[28], crc32c(out.data(), 28), 4);
+  return out;
+}
+
+// ---- CaptureWriter
+
+CaptureWriter::~CaptureWriter() {
+  if (fd_ >= 0) (void)finish();
+}
+CaptureWriter::CaptureWriter(CaptureWriter&& other) noexcept
+    : fd_(std::exchange(other.fd_, -1)),
+      path_(std::move(other.path_)),
+      bytes_written_(other.bytes_written_),
+      failed_(other.failed_) {}
+CaptureWriter& CaptureWriter::operator=(CaptureWriter&& other) noexcept {
+  if (this != &other) {
+    if (fd_ >= 0) (void)finish();
+    fd_ = std::exchange(other.fd_, -1);
+    path_ = std::move(other.path_);
+    bytes_written_ = other.bytes_written_;
+    failed_ = other.failed_;
+  }
+  return *this;
+}
+
+Result<CaptureWriter> CaptureWriter::create(const std::string& path) {
+  CaptureWriter writer;
+  writer.path_ = path;
+  const std::string partial = writer.partial_path();
+  writer.fd_ = ::open(partial.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (writer.fd_ < 0) return make_error(Errc::io_error, "cannot create capture " + partial + ": " + errno_text(errno));
+  const auto now = std::chrono::system_clock::now().time_since_epoch();
+  const auto header = capture_file_header(
+      static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(now).count()));
+  if (Status status = writer.append(header); !status) {
+    ::close(std::exchange(writer.fd_, -1));
+    ::unlink(partial.c_str());
+    return status.error();
+  }
+  return writer;
+}
+
+namespace {
+
+// Writes every byte of the iovecs or reports why not; returns bytes written so far in `done`.
+Status write_iov(int fd, iovec* iov, int count, std::size_t& done) {
+  done = 0;
+  while (count > 0) {
+    const ssize_t n = ::writev(fd, iov, count);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return make_error(Errc::io_error, errno_text(errno));
+    }
+    if (n == 0) return make_error(Errc::io_error, "write made no progress");
+    done += static_cast<std::size_t>(n);
+    auto left = static_cast<std::size_t>(n);
+    while (count > 0 && left >= iov->iov_len) {
+      left -= iov->iov_len;
+      ++iov;
+      --count;
+    }
+    if (count > 0) {
+      iov->iov_base = static_cast<char*>(iov->iov_base) + left;
+      iov->iov_len -= left;
+    }
+  }
+  return Ok{};
+}
+
+}  // namespace
+
+static Status append_iov(int fd, bool& failed, std::uint64_t& bytes_written, const std::string& name, iovec* iov,
+                         int count) {
+  if (fd < 0) return make_error(Errc::invalid_argument, "capture " + name + " is not open");
+  if (failed) return make_error(Errc::io_error, "capture " + name + " failed earlier; nothing more is written");
+  std::size_t done = 0;
+  if (Status status = write_iov(fd, iov, count, done); !status) {
+    failed = true;
+    // Cut back to the last whole record so the file stays clean; the reader copes either way.
+    const bool cut = ::ftruncate(fd, static_cast<off_t>(bytes_written)) == 0;
+    return make_error(Errc::io_error, "writing capture " + name + " at offset " + std::to_string(bytes_written + done) +
+                                          ": " + status.error().message +
+                                          (cut ? "; file cut back to its last complete record at offset " +
+                                                     std::to_string(bytes_written)
+                                               : std::string()));
+  }
+  bytes_written += done;
+  return Ok{};
+}
+
+Status CaptureWriter::append(std::span<const std::byte> stream_bytes) {
+  iovec iov{const_cast<std::byte*>(stream_bytes.data()), stream_bytes.size()};  // writev only reads
+  return append_iov(fd_, failed_, bytes_written_, partial_path(), &iov, 1);
+}
+
+Status CaptureWriter::append(const Message& message) {
+  iovec iov[3] = {
+      {const_cast<std::byte*>(message.header_bytes.data()), message.header_bytes.size()},
+      {const_cast<std::byte*>(message.control.data()), message.control.size()},
+      {const_cast<std::byte*>(message.payload.data()), message.payload.size()},
+  };
+  return append_iov(fd_, failed_, bytes_written_, partial_path(), iov, 3);
+}
+
+Status CaptureWriter::finish() {
+  if (fd_ < 0) return make_error(Errc::invalid_argument, "capture " + path_ + " is not open");
+  const int fd = std::exchange(fd_, -1);
+  const std::string partial = partial_path();
+  if (failed_) {
+    ::close(fd);
+    return make_error(Errc::io_error, "capture " + partial + " is incomplete after a write error; left as it is");
+  }
+  if (::fdatasync(fd) != 0) {
+    const int error = errno;
+    ::close(fd);
+    return make_error(Errc::io_error, "flushing capture " + partial + ": " + errno_text(error));
+  }
+  if (::close(fd) != 0) return make_error(Errc::io_error, "closing capture " + partial + ": " + errno_text(errno));
+  if (::rename(partial.c_str(), path_.c_str()) != 0)
+    return make_error(Errc::io_error, "renaming " + partial + " to " + path_ + ": " + errno_text(errno));
+  return Ok{};
+}
+
+// ---- CaptureReader
+
+CaptureReader::~CaptureReader() {
+  if (fd_ >= 0) ::close(fd_);
+}
+CaptureReader::CaptureReader(CaptureReader&& other) noexcept { *this = std::move(other); }
+CaptureReader& CaptureReader::operator=(CaptureReader&& other) noexcept {
+  if (this != &other) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = std::exchange(other.fd_, -1);
+    path_ = std::move(other.path_);
+    decoder_ = std::move(other.decoder_);
+    file_size_ = other.file_size_;
+    created_unix_ns_ = other.created_unix_ns_;
+    records_read_ = other.records_read_;
+    protocol_version_ = other.protocol_version_;
+    truncation_ = std::move(other.truncation_);
+    at_end_ = other.at_end_;
+    error_ = std::move(other.error_);
+  }
+  return *this;
+}
+
+Result<CaptureReader> CaptureReader::open(const std::string& path, DecoderLimits limits) {
+  CaptureReader reader;
+  reader.path_ = path;
+  reader.decoder_ = StreamDecoder(limits);
+  reader.fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (reader.fd_ < 0) return make_error(Errc::io_error, "cannot open capture " + path + ": " + errno_text(errno));
+  struct stat info {};
+  if (::fstat(reader.fd_, &info) != 0) return make_error(Errc::io_error, "stat " + path + ": " + errno_text(errno));
+  reader.file_size_ = static_cast<std::uint64_t>(info.st_size);
+  std::array<std::byte, capture_header_size> header{};
+  const ssize_t n = ::pread(reader.fd_, header.data(), header.size(), 0);
+  if (n < 0) return make_error(Errc::io_error, "reading " + path + ": " + errno_text(errno));
+  Result<CaptureHeaderInfo> parsed = parse_capture_header({header.data(), static_cast<std::size_t>(n)}, path);
+  if (!parsed) return std::move(parsed).error();
+  if (parsed->header_length > reader.file_size_)
+    return make_error(Errc::truncated, path + ": capture file header of " + std::to_string(parsed->header_length) +
+                                           " bytes but the file has " + std::to_string(reader.file_size_));
+  if (::lseek(reader.fd_, parsed->header_length, SEEK_SET) < 0)
+    return make_error(Errc::io_error, "seek in " + path + ": " + errno_text(errno));
+  reader.protocol_version_ = parsed->protocol_version;
+  reader.created_unix_ns_ = parsed->created_unix_ns;
+  reader.decoder_.set_stream_offset(parsed->header_length);
+  return reader;
+}
+
+Result<const Message*> CaptureReader::next() {
+  if (error_) return *error_;
+  if (fd_ < 0) return make_error(Errc::invalid_argument, "capture reader is not open");
+  if (at_end_) return static_cast<const Message*>(nullptr);
+  decoder_.next();
+  while (true) {
+    const std::span<std::byte> window = decoder_.window(std::size_t{1} << 24);
+    const ssize_t n = ::read(fd_, window.data(), window.size());
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      error_ = make_error(Errc::io_error, "reading " + path_ + " at offset " +
+                                              std::to_string(decoder_.stream_offset()) + ": " + errno_text(errno));
+      return *error_;
+    }
+    if (n == 0) {
+      at_end_ = true;
+      if (!decoder_.at_boundary())
+        truncation_ =
+            CaptureTruncation{decoder_.record_offset(), decoder_.stream_offset(), decoder_.describe_partial()};
+      return static_cast<const Message*>(nullptr);
+    }
+    if (Status status = decoder_.commit(static_cast<std::size_t>(n)); !status) {
+      std::string text = status.error().message;
+      const std::string stream_word = "stream offset";
+      if (auto pos = text.find(stream_word); pos != std::string::npos)
+        text.replace(pos, stream_word.size(), "file offset");
+      error_ = make_error(status.error().code, path_ + ": " + text);
+      return *error_;
+    }
+    if (decoder_.message_ready()) {
+      ++records_read_;
+      return &decoder_.message();
+    }
+  }
+}
+
+Result<std::optional<CaptureTruncation>> read_capture_bytes(std::span<const std::byte> file_bytes,
+                                                            const std::function<Status(const Message&)>& on_record,
+                                                            DecoderLimits limits) {
+  Result<CaptureHeaderInfo> parsed = parse_capture_header(file_bytes, "capture");
+  if (!parsed) return std::move(parsed).error();
+  if (parsed->header_length > file_bytes.size())
+    return make_error(Errc::truncated, "capture: file header of " + std::to_string(parsed->header_length) +
+                                           " bytes but the data has " + std::to_string(file_bytes.size()));
+  StreamDecoder decoder(limits);
+  decoder.set_stream_offset(parsed->header_length);
+  std::span<const std::byte> rest = file_bytes.subspan(parsed->header_length);
+  while (!rest.empty()) {
+    Result<std::size_t> consumed = decoder.feed(rest);
+    if (!consumed) return make_error(consumed.error().code, "capture: " + consumed.error().message);
+    rest = rest.subspan(*consumed);
+    if (decoder.message_ready()) {
+      if (Status status = on_record(decoder.message()); !status) return status.error();
+      decoder.next();
+    }
+  }
+  if (!decoder.at_boundary())
+    return std::optional<CaptureTruncation>(
+        CaptureTruncation{decoder.record_offset(), file_bytes.size(), decoder.describe_partial()});
+  return std::optional<CaptureTruncation>();
+}
+
+}  // namespace slproto

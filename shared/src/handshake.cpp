@@ -1,0 +1,99 @@
+#include "slproto/handshake.hpp"
+
+#include <algorithm>
+
+namespace slproto {
+namespace {
+
+// Compares without an early exit so the time taken does not reveal how much of a guess matched.
+bool same_secret(const std::string& expected, const std::string& given) noexcept {
+  unsigned char difference = expected.size() == given.size() ? 0 : 1;
+  const std::size_t n = std::max(expected.size(), given.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto a = static_cast<unsigned char>(i < expected.size() ? expected[i] : 0);
+    const auto b = static_cast<unsigned char>(i < given.size() ? given[i] : 0);
+    difference = static_cast<unsigned char>(difference | (a ^ b));
+  }
+  return difference == 0;
+}
+
+}  // namespace
+
+pb::Hello make_hello(std::string client_name, std::string software_version, std::uint64_t capabilities,
+                     std::string auth_token, std::string expected_board) {
+  pb::Hello hello;
+  hello.set_protocol_version(protocol_version);
+  hello.set_min_protocol_version(min_protocol_version);
+  hello.set_client_name(std::move(client_name));
+  hello.set_software_version(std::move(software_version));
+  hello.set_capabilities(capabilities);
+  hello.set_auth_token(std::move(auth_token));
+  hello.set_board_name(std::move(expected_board));
+  return hello;
+}
+
+Result<pb::HelloReply> client_handshake(Connection& connection, const pb::Hello& hello,
+                                        std::chrono::milliseconds timeout) {
+  if (Status status = connection.send(hello, timeout); !status) return status.error();
+  Result<pb::HelloReply> reply = connection.receive_as<pb::HelloReply>(timeout);
+  if (!reply) return make_error(reply.error().code, "handshake: " + reply.error().message);
+  if (!reply->accepted()) {
+    Errc code = errc_from_wire(reply->error_code());
+    return make_error(code, "handshake: " + connection.peer_address() + " rejected the hello: " + reply->error_text());
+  }
+  if (reply->protocol_version() < std::max<std::uint32_t>(hello.min_protocol_version(), min_protocol_version) ||
+      reply->protocol_version() > std::min<std::uint32_t>(hello.protocol_version(), protocol_version))
+    return make_error(Errc::wrong_version, "handshake: server chose protocol version " +
+                                               std::to_string(reply->protocol_version()) + ", outside " +
+                                               std::to_string(hello.min_protocol_version()) + ".." +
+                                               std::to_string(hello.protocol_version()));
+  if (!hello.board_name().empty() && reply->board_name() != hello.board_name())
+    return make_error(Errc::unsupported, "handshake: expected board \"" + hello.board_name() + "\" but " +
+                                             connection.peer_address() + " is \"" + reply->board_name() + "\"");
+  return reply;
+}
+
+Result<pb::Hello> server_handshake(Connection& connection, const ServerIdentity& identity,
+                                   std::chrono::milliseconds timeout) {
+  Result<pb::Hello> hello = connection.receive_as<pb::Hello>(timeout);
+  if (!hello) return make_error(hello.error().code, "handshake: " + hello.error().message);
+
+  pb::HelloReply reply;
+  reply.set_software_version(identity.software_version);
+  reply.set_capabilities(identity.capabilities);
+  reply.set_board_name(identity.board_name);
+  *reply.mutable_camera() = identity.camera;
+  reply.set_projector_count(identity.projector_count);
+
+  std::optional<Error> rejection;
+  const std::uint32_t highest = std::min<std::uint32_t>(hello->protocol_version(), protocol_version);
+  const std::uint32_t lowest = std::max<std::uint32_t>(hello->min_protocol_version(), min_protocol_version);
+  if (hello->protocol_version() == 0 || highest < lowest) {
+    rejection = make_error(Errc::wrong_version,
+                           "client speaks protocol " + std::to_string(hello->min_protocol_version()) + ".." +
+                               std::to_string(hello->protocol_version()) + ", server " +
+                               std::to_string(min_protocol_version) + ".." + std::to_string(protocol_version));
+  } else if (!identity.auth_token.empty() && !same_secret(identity.auth_token, hello->auth_token())) {
+    rejection = make_error(Errc::unauthorized,
+                           hello->auth_token().empty() ? "an auth token is required" : "the auth token is wrong");
+  } else if (!hello->board_name().empty() && hello->board_name() != identity.board_name) {
+    rejection = make_error(Errc::unsupported,
+                           "this is board \"" + identity.board_name + "\", not \"" + hello->board_name() + "\"");
+  }
+  if (rejection) {
+    reply.set_accepted(false);
+    reply.set_error_code(static_cast<std::uint32_t>(rejection->code));
+    reply.set_error_text(rejection->message);
+    reply.set_protocol_version(protocol_version);
+    (void)connection.send(reply, timeout);  // best effort: we close either way
+    connection.close();
+    return make_error(rejection->code,
+                      "handshake with " + connection.peer_address() + " rejected: " + rejection->message);
+  }
+  reply.set_accepted(true);
+  reply.set_protocol_version(highest);
+  if (Status status = connection.send(reply, timeout); !status) return status.error();
+  return hello;
+}
+
+}  // namespace slproto

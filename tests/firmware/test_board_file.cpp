@@ -1,0 +1,131 @@
+// Board files: the shipped ones load; a missing, mistyped, unknown or contradictory field is
+// refused with a message naming it.
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "slscand/hal/board.hpp"
+
+using slscand::hal::BoardConfig;
+using slscand::hal::CameraTriggerSource;
+using slscand::hal::load_board;
+using slscand::hal::parse_board;
+
+namespace {
+
+std::string read_text(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+const std::string kSimPath = std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml";
+
+// The sim board with one line replaced (or removed when `replacement` is empty).
+std::string sim_with(const std::string& line_start, const std::string& replacement) {
+  std::istringstream in(read_text(kSimPath));
+  std::string out, line;
+  bool found = false;
+  while (std::getline(in, line)) {
+    if (!found && line.rfind(line_start, 0) == 0) {
+      found = true;
+      if (!replacement.empty()) out += replacement + "\n";
+      continue;
+    }
+    out += line + "\n";
+  }
+  EXPECT_TRUE(found) << "no line starting with '" << line_start << "' in sim.toml";
+  return out;
+}
+
+std::string error_of(const std::string& text) {
+  auto board = parse_board(text, "test.toml");
+  EXPECT_FALSE(board.ok());
+  return board ? std::string() : board.error().message;
+}
+
+}  // namespace
+
+TEST(BoardFile, ShippedBoardsLoad) {
+  for (const char* name : {"sim", "rpi", "beaglebone-black"}) {
+    auto board = load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/" + name + ".toml");
+    ASSERT_TRUE(board.ok()) << name << ": " << board.error().message;
+    EXPECT_EQ(board->name, name);
+    EXPECT_TRUE(board->check().ok());
+  }
+}
+
+TEST(BoardFile, SimBoardValues) {
+  auto board = load_board(kSimPath);
+  ASSERT_TRUE(board.ok()) << board.error().message;
+  EXPECT_TRUE(board->is_sim());
+  EXPECT_EQ(board->bind_address, "127.0.0.1");  // loopback by default
+  EXPECT_EQ(board->projectors[0].trig_in_1, 17u);
+  EXPECT_EQ(board->projectors[1].trig_out_1, 25u);
+  EXPECT_EQ(board->camera_format.width, 640);
+  EXPECT_EQ(board->trigger_source, CameraTriggerSource::projector);
+  EXPECT_FALSE(board->camera_trigger_line.has_value());
+  EXPECT_DOUBLE_EQ(board->pattern_period_us, 5000);
+}
+
+TEST(BoardFile, GpioTriggerBoardHasItsLine) {
+  auto board = load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/beaglebone-black.toml");
+  ASSERT_TRUE(board.ok()) << board.error().message;
+  EXPECT_EQ(board->trigger_source, CameraTriggerSource::gpio);
+  ASSERT_TRUE(board->camera_trigger_line.has_value());
+  EXPECT_EQ(*board->camera_trigger_line, 28u);
+}
+
+TEST(BoardFile, MissingFieldIsNamed) {
+  EXPECT_NE(error_of(sim_with("trig_out_1 = 25", "")).find("missing field 'projector.right.trig_out_1'"), std::string::npos);
+  EXPECT_NE(error_of(sim_with("device =", "")).find("'camera.device'"), std::string::npos);
+  EXPECT_NE(error_of(sim_with("pattern_period_us", "")).find("'timing.pattern_period_us'"), std::string::npos);
+}
+
+TEST(BoardFile, LineUsedTwiceIsNamedWithBothFunctions) {
+  const std::string message = error_of(sim_with("trig_in_1 = 23", "trig_in_1 = 17"));
+  EXPECT_NE(message.find("GPIO line 17 is assigned twice"), std::string::npos) << message;
+  EXPECT_NE(message.find("projector.left.trig_in_1"), std::string::npos) << message;
+  EXPECT_NE(message.find("projector.right.trig_in_1"), std::string::npos) << message;
+}
+
+TEST(BoardFile, ContradictionsAreRefused) {
+  // A trigger line while the projectors trigger the camera.
+  EXPECT_NE(error_of(sim_with("trigger = ", "trigger = \"projector\"\ntrigger_line = 5")).find("camera.trigger_line is set"),
+            std::string::npos);
+  // gpio trigger without its line.
+  EXPECT_NE(error_of(sim_with("trigger = ", "trigger = \"gpio\"")).find("needs camera.trigger_line"), std::string::npos);
+  // gpio trigger on a projector's line.
+  EXPECT_NE(error_of(sim_with("trigger = ", "trigger = \"gpio\"\ntrigger_line = 22")).find("assigned twice"),
+            std::string::npos);
+  // A period that cannot hold exposure + read-out.
+  EXPECT_NE(error_of(sim_with("pattern_period_us", "pattern_period_us = 3000")).find("must exceed"), std::string::npos);
+  // Mixing the sim camera with real GPIO.
+  EXPECT_NE(error_of(sim_with("backend = \"sim\"", "backend = \"gpiod\"")).find("go together"), std::string::npos);
+  // Below the DLP's minimum exposure.
+  EXPECT_NE(error_of(sim_with("pattern_exposure_us", "pattern_exposure_us = 100")).find("235 us"), std::string::npos);
+}
+
+TEST(BoardFile, WrongTypesAndUnknownKeysAreNamed) {
+  EXPECT_NE(error_of(sim_with("width = 640", "width = \"640\"")).find("'camera.width' must be an integer"),
+            std::string::npos);
+  EXPECT_NE(error_of(sim_with("port = 7878", "port = 70000")).find("network.port"), std::string::npos);
+  EXPECT_NE(error_of(sim_with("gain = 1.0", "gian = 1.0")).find("unknown field 'camera.gian'"), std::string::npos);
+  EXPECT_NE(error_of(sim_with("pixel_format", "pixel_format = \"rgb24\"")).find("unknown pixel format 'rgb24'"),
+            std::string::npos);
+  EXPECT_NE(error_of(sim_with("trig_in_1 = 17", "trig_in_1 = -3")).find("must not be negative"), std::string::npos);
+}
+
+TEST(BoardFile, SyntaxErrorHasLineNumber) {
+  const std::string message = error_of("[board]\nname = \"x\"\n[network\n");
+  EXPECT_NE(message.find("test.toml:3"), std::string::npos) << message;
+}
+
+TEST(BoardFile, MissingFileIsNamed) {
+  auto board = load_board("/nonexistent/board.toml");
+  ASSERT_FALSE(board.ok());
+  EXPECT_NE(board.error().message.find("/nonexistent/board.toml"), std::string::npos);
+}

@@ -1,0 +1,362 @@
+// Decoder tests on synthetic frames: each camera pixel sees a known projector coordinate, and
+// its frames are generated straight from slproto::PatternPlan::value (with projector gamma,
+// blur at the Gray edges, sensor noise and 8/16-bit quantisation). No rig needed.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <functional>
+#include <random>
+#include <vector>
+
+#include "slscan/core/decode.hpp"
+
+namespace {
+
+using slproto::CodingAxis;
+using slproto::PatternPlan;
+using slproto::PatternPlanConfig;
+using slscan::core::DecodedView;
+using slscan::core::DecodeMask;
+using slscan::core::DecodeOptions;
+using slscan::core::ProjectorViewDecoder;
+
+struct SceneModel {
+  int width = 320, height = 40;
+  std::function<double(int, int)> coordinate;            // true projector coordinate of pixel (u, v)
+  std::function<double(int, int)> gain = [](int, int) { return 180.0; };  // DN for a full-white pattern
+  double black_dn = 8.0;      // ambient + dark level
+  double gamma = 1.0;         // projector response: radiance = value^gamma
+  double blur_px = 0.0;       // box blur of the pattern (projector px), sampled at 33 points
+  double noise_dn = 0.0;
+  int bit_depth = 8;
+  std::uint32_t seed = 7;
+};
+
+// What the DMD shows at continuous coordinate x: binary patterns are constant over each
+// projector pixel [c - 0.5, c + 0.5) (so their edges fall between pixel centres); the sine is
+// smooth (defocus removes the pixel steps, leaving its phase).
+double pattern_at(const PatternPlan& plan, std::size_t p, double x) {
+  const auto kind = plan[p].kind;
+  const bool binary = kind == slproto::PatternKind::gray_bit || kind == slproto::PatternKind::complementary_bit;
+  return plan.value(p, binary ? std::floor(x + 0.5) : x);
+}
+
+// Frames of a plan for the scene, as 16-bit samples (narrowed to 8 bit by the caller).
+std::vector<std::vector<std::uint16_t>> render(const PatternPlan& plan, const SceneModel& scene) {
+  std::mt19937 rng(scene.seed);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  const double top = std::pow(2.0, scene.bit_depth) - 1.0;
+  const double scale = top / 255.0;
+  std::vector<std::vector<std::uint16_t>> frames(plan.size());
+  for (std::size_t p = 0; p < plan.size(); ++p) {
+    auto& frame = frames[p];
+    frame.resize(static_cast<std::size_t>(scene.width * scene.height));
+    for (int v = 0; v < scene.height; ++v)
+      for (int u = 0; u < scene.width; ++u) {
+        const double x = scene.coordinate(u, v);
+        double value = 0;
+        if (scene.blur_px > 0) {
+          constexpr int kSamples = 33;
+          for (int s = 0; s < kSamples; ++s) {
+            const double offset = scene.blur_px * ((s + 0.5) / kSamples - 0.5);
+            value += std::pow(pattern_at(plan, p, x + offset), scene.gamma);
+          }
+          value /= kSamples;
+        } else {
+          value = std::pow(pattern_at(plan, p, x), scene.gamma);
+        }
+        double dn = scale * (scene.black_dn + scene.gain(u, v) * value) + scale * scene.noise_dn * noise(rng);
+        frame[static_cast<std::size_t>(v * scene.width + u)] =
+            static_cast<std::uint16_t>(std::clamp(std::round(dn), 0.0, top));
+      }
+  }
+  return frames;
+}
+
+DecodedView decode(const PatternPlan& plan, const SceneModel& scene, DecodeOptions options = {}) {
+  options.bit_depth = scene.bit_depth;
+  ProjectorViewDecoder decoder(plan, scene.width, scene.height, options);
+  const auto frames = render(plan, scene);
+  for (std::size_t p = 0; p < frames.size(); ++p) {
+    if (scene.bit_depth == 8) {
+      std::vector<std::uint8_t> narrow(frames[p].begin(), frames[p].end());
+      decoder.add_frame(p, narrow.data(), static_cast<std::size_t>(scene.width));
+    } else {
+      decoder.add_frame(p, frames[p].data(), static_cast<std::size_t>(scene.width));
+    }
+  }
+  return decoder.finish();
+}
+
+struct Errors {
+  double max_abs = 0, median_abs = 0;
+  std::size_t jumps = 0;  // errors of half a period or more: a wrong fringe order
+  std::size_t compared = 0;
+};
+
+Errors errors(const DecodedView& view, const SceneModel& scene, double period) {
+  Errors e;
+  std::vector<double> abs_errors;
+  for (int v = 0; v < scene.height; ++v)
+    for (int u = 0; u < scene.width; ++u) {
+      const auto i = static_cast<std::size_t>(v * scene.width + u);
+      if (view.mask[i] != DecodeMask::valid) continue;
+      const double err = std::abs(view.coordinate[i] - scene.coordinate(u, v));
+      if (err >= 0.5 * period) ++e.jumps;
+      abs_errors.push_back(err);
+    }
+  e.compared = abs_errors.size();
+  if (!abs_errors.empty()) {
+    e.max_abs = *std::max_element(abs_errors.begin(), abs_errors.end());
+    std::nth_element(abs_errors.begin(), abs_errors.begin() + static_cast<long>(abs_errors.size() / 2),
+                     abs_errors.end());
+    e.median_abs = abs_errors[abs_errors.size() / 2];
+  }
+  return e;
+}
+
+// A smooth coordinate map over most of the 1140-px coded extent, with a slope that is not a
+// rational multiple of the period so every sub-pixel phase is visited.
+double ramp(int u, int v) { return 2.37 + 3.4713 * u + 0.0917 * v; }
+
+TEST(Decode, RecoversExactCoordinateNoiseFree16Bit) {
+  const PatternPlan plan;  // the paper's 19 frames
+  SceneModel scene;
+  scene.coordinate = ramp;
+  scene.bit_depth = 16;
+  const DecodedView view = decode(plan, scene);
+  EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(scene.width * scene.height));
+  const Errors e = errors(view, scene, 8);
+  EXPECT_EQ(e.compared, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(e.jumps, 0u);
+  // 16-bit quantisation of a 180 x 257 DN sine: ~1e-5 rad of phase; the fast atan2 adds ~2e-7.
+  EXPECT_LT(e.max_abs, 1e-3);
+}
+
+TEST(Decode, PixelCentreConvention) {
+  // A pixel that sees the centre of projector column 100 decodes to 100.0, not 100.5; and the
+  // centres either side of a Gray edge (x = 8k - 0.5) decode to their own column.
+  const PatternPlan plan;
+  const std::vector<double> truth = {100.0, 0.0, 7.0, 8.0, 15.0, 16.0, 1139.0, 571.25, 799.75, 4.0, 3.999, 4.001};
+  SceneModel scene;
+  scene.width = static_cast<int>(truth.size());
+  scene.height = 1;
+  scene.bit_depth = 16;
+  scene.coordinate = [&](int u, int) { return truth[static_cast<std::size_t>(u)]; };
+  const DecodedView view = decode(plan, scene);
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    ASSERT_EQ(view.mask[i], DecodeMask::valid) << "column " << truth[i];
+    EXPECT_NEAR(view.coordinate[i], truth[i], 1e-3) << "column " << truth[i];
+  }
+}
+
+TEST(Decode, GammaAndNoiseStayAccurate) {
+  const PatternPlan plan;
+  SceneModel scene;
+  scene.coordinate = ramp;
+  scene.gamma = 2.2;
+  scene.noise_dn = 1.5;
+  scene.blur_px = 1.4;
+  const DecodedView view = decode(plan, scene);
+  const Errors e = errors(view, scene, 8);
+  EXPECT_GT(e.compared, static_cast<std::size_t>(0.99 * scene.width * scene.height));
+  EXPECT_EQ(e.jumps, 0u);
+  // Gamma 2.2 puts harmonics into the sine; an 8-step shift cancels all up to the 6th, so
+  // what is left is noise: sigma_phi ~ sigma / (B sqrt(N / 2)) ~ 1.5 / (90 * 2) rad ~ 0.01 px.
+  EXPECT_LT(e.median_abs, 0.02);
+  EXPECT_LT(e.max_abs, 0.12);
+}
+
+TEST(Decode, ComplementaryBitRemovesJumpsAtPeriodEdges) {
+  // Blur and noise make the Gray bits unreliable within ~1 px of their edges. Without the
+  // complementary bit, those pixels get the neighbouring fringe order: 2 pi jumps (errors of a
+  // whole period). With it, the order is taken from K2 near the period edges: no jumps.
+  SceneModel scene;
+  scene.coordinate = ramp;
+  scene.blur_px = 2.0;
+  scene.noise_dn = 3.0;
+  scene.gamma = 2.2;
+  PatternPlanConfig with;
+  PatternPlanConfig without = with;
+  without.complementary_bit = false;
+  const DecodedView plain = decode(PatternPlan(without), scene);
+  const DecodedView corrected = decode(PatternPlan(with), scene);
+  const Errors e_plain = errors(plain, scene, 8);
+  const Errors e_corrected = errors(corrected, scene, 8);
+  EXPECT_GT(e_plain.jumps, 50u) << "the blur should have made plain Gray decoding jump";
+  EXPECT_EQ(e_corrected.jumps, 0u);
+  EXPECT_LT(e_corrected.max_abs, 0.3);
+  EXPECT_GT(e_corrected.compared, static_cast<std::size_t>(0.99 * scene.width * scene.height));
+}
+
+TEST(Decode, MasksLowContrastLowModulationAndSaturation) {
+  const PatternPlan plan;
+  SceneModel scene;
+  scene.coordinate = ramp;
+  scene.noise_dn = 0.5;
+  // Column bands: dark (contrast 5 DN), overexposed (clips at 255), normal.
+  scene.gain = [](int u, int) { return u < 100 ? 5.0 : (u < 200 ? 400.0 : 150.0); };
+  const DecodedView view = decode(plan, scene);
+  std::size_t checked = 0;
+  for (int v = 0; v < scene.height; ++v)
+    for (int u = 0; u < scene.width; ++u) {
+      const auto i = static_cast<std::size_t>(v * scene.width + u);
+      const DecodeMask expected =
+          u < 100 ? DecodeMask::low_contrast : (u < 200 ? DecodeMask::saturated : DecodeMask::valid);
+      ASSERT_EQ(view.mask[i], expected) << "pixel " << u << ", " << v;
+      if (expected != DecodeMask::valid) {
+        EXPECT_TRUE(std::isnan(view.coordinate[i]));
+        EXPECT_EQ(view.quality[i], 0.0f);
+      }
+      ++checked;
+    }
+  EXPECT_EQ(checked, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(view.counts.low_contrast, static_cast<std::size_t>(100 * scene.height));
+  EXPECT_EQ(view.counts.saturated, static_cast<std::size_t>(100 * scene.height));
+  EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(120 * scene.height));
+  EXPECT_EQ(view.counts.total(), static_cast<std::size_t>(scene.width * scene.height));
+
+  // Low modulation: white/black are fine but the fringes are washed out (a blur of exactly one
+  // period cancels the sine), as on a surface far out of the projector's focus.
+  SceneModel washed = scene;
+  washed.gain = [](int, int) { return 150.0; };
+  washed.blur_px = 8.0;
+  const DecodedView blurred = decode(plan, washed);
+  EXPECT_EQ(blurred.counts.low_modulation, static_cast<std::size_t>(washed.width * washed.height));
+  EXPECT_EQ(blurred.counts.valid, 0u);
+}
+
+TEST(Decode, RowsAxisWithOddStepsAndPeriod) {
+  PatternPlanConfig config;
+  config.axis = CodingAxis::rows;
+  config.period_px = 12;
+  config.phase_steps = 5;
+  const PatternPlan plan(config);
+  SceneModel scene;
+  scene.coordinate = [](int u, int v) { return 1.7 + 2.7913 * u + 0.31 * v; };  // up to ~906 of 912 rows
+  scene.gamma = 2.2;
+  scene.noise_dn = 1.0;
+  scene.blur_px = 1.0;
+  const DecodedView view = decode(plan, scene);
+  EXPECT_EQ(view.axis, CodingAxis::rows);
+  const Errors e = errors(view, scene, 12);
+  EXPECT_GT(e.compared, static_cast<std::size_t>(0.99 * scene.width * scene.height));
+  EXPECT_EQ(e.jumps, 0u);
+  // A 5-step shift leaves gamma's 4th and 6th harmonics aliased onto the fundamental: a few
+  // hundredths of a pixel at P = 12.
+  EXPECT_LT(e.median_abs, 0.08);
+}
+
+TEST(Decode, PlanWithoutWhiteBlackThresholdsAgainstThePhaseMean) {
+  PatternPlanConfig config;
+  config.with_white_black = false;
+  const PatternPlan plan(config);
+  SceneModel scene;
+  scene.coordinate = ramp;
+  scene.noise_dn = 1.0;
+  const DecodedView view = decode(plan, scene);
+  const Errors e = errors(view, scene, 8);
+  EXPECT_GT(e.compared, static_cast<std::size_t>(0.99 * scene.width * scene.height));
+  EXPECT_EQ(e.jumps, 0u);
+  EXPECT_LT(e.median_abs, 0.02);
+}
+
+TEST(Decode, GrayCodeOnlyPlanGivesHalfPeriodCentres) {
+  PatternPlanConfig config;
+  config.phase_steps = 0;
+  const PatternPlan plan(config);
+  SceneModel scene;
+  scene.coordinate = ramp;
+  const DecodedView view = decode(plan, scene);
+  EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(scene.width * scene.height));
+  const Errors e = errors(view, scene, 8);
+  // Half-period resolution: the centre of a 4-px cell is within 2 px of any point in it.
+  EXPECT_LE(e.max_abs, 2.0 + 1e-6);
+}
+
+TEST(Decode, FramesInAnyOrderAndWithStride) {
+  const PatternPlan plan;
+  SceneModel scene;
+  scene.coordinate = ramp;
+  scene.noise_dn = 1.0;
+  const auto frames = render(plan, scene);
+  const DecodedView reference = decode(plan, scene);
+
+  // Reverse order, padded rows, and one frame first sent wrong then replaced.
+  const std::size_t stride = static_cast<std::size_t>(scene.width) + 13;
+  ProjectorViewDecoder decoder(plan, scene.width, scene.height);
+  std::vector<std::uint8_t> padded(stride * static_cast<std::size_t>(scene.height), 0);
+  std::vector<std::uint8_t> junk(padded.size(), 77);
+  decoder.add_frame(4, junk.data(), stride);
+  for (std::size_t p = plan.size(); p-- > 0;) {
+    for (int v = 0; v < scene.height; ++v)
+      for (int u = 0; u < scene.width; ++u)
+        padded[static_cast<std::size_t>(v) * stride + static_cast<std::size_t>(u)] =
+            static_cast<std::uint8_t>(frames[p][static_cast<std::size_t>(v * scene.width + u)]);
+    decoder.add_frame(p, padded.data(), stride);
+  }
+  const DecodedView view = decoder.finish();
+  ASSERT_EQ(view.coordinate.size(), reference.coordinate.size());
+  for (std::size_t i = 0; i < view.coordinate.size(); ++i) {
+    ASSERT_EQ(view.mask[i], reference.mask[i]);
+    if (view.mask[i] == DecodeMask::valid) {
+      ASSERT_EQ(view.coordinate[i], reference.coordinate[i]);
+    }
+  }
+  // finish() readies the decoder for the next view: nothing is present any more.
+  EXPECT_FALSE(decoder.complete());
+}
+
+TEST(Decode, RejectsMisuseWithClearErrors) {
+  const PatternPlan plan;
+  std::vector<std::uint8_t> frame8(64 * 8);
+  std::vector<std::uint16_t> frame16(64 * 8);
+  ProjectorViewDecoder decoder(plan, 64, 8);
+  EXPECT_THROW(decoder.add_frame(19, frame8.data(), 64), std::out_of_range);
+  EXPECT_THROW(decoder.add_frame(0, frame8.data(), 63), std::invalid_argument);
+  EXPECT_THROW(decoder.add_frame(0, static_cast<const std::uint8_t*>(nullptr), 64), std::invalid_argument);
+  EXPECT_THROW(decoder.add_frame(0, frame16.data(), 64), std::invalid_argument);  // 16-bit into 8-bit
+  for (std::size_t p = 0; p < plan.size(); ++p)
+    if (p != 7) decoder.add_frame(p, frame8.data(), 64);
+  try {
+    (void)decoder.finish();
+    ADD_FAILURE() << "finish() with a missing frame must throw";
+  } catch (const std::logic_error& e) {
+    EXPECT_NE(std::string(e.what()).find("frame 7 (gray_bit 5)"), std::string::npos) << e.what();
+  }
+  DecodeOptions bad;
+  bad.bit_depth = 9;
+  EXPECT_THROW(bad.check(), std::invalid_argument);
+  bad = {};
+  bad.min_modulation_dn = -1;
+  EXPECT_THROW(bad.check(), std::invalid_argument);
+  bad = {};
+  bad.saturation_dn = 300;
+  EXPECT_THROW(bad.check(), std::invalid_argument);
+  EXPECT_THROW(ProjectorViewDecoder(plan, 0, 8), std::invalid_argument);
+  PatternPlanConfig unusable;
+  unusable.with_white_black = false;
+  unusable.phase_steps = 0;
+  EXPECT_THROW(ProjectorViewDecoder(PatternPlan(unusable), 8, 8), std::invalid_argument);
+}
+
+TEST(Decode, TwelveBitFrames) {
+  const PatternPlan plan;
+  SceneModel scene;
+  scene.coordinate = ramp;
+  scene.bit_depth = 12;
+  scene.noise_dn = 1.0;  // in 8-bit DN units, scaled to 12 bit by the renderer
+  scene.gamma = 2.2;
+  DecodeOptions options;
+  options.min_contrast_dn = 12.0f * 16;
+  options.min_modulation_dn = 6.0f * 16;
+  const DecodedView view = decode(plan, scene, options);
+  const Errors e = errors(view, scene, 8);
+  EXPECT_EQ(e.compared, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(e.jumps, 0u);
+  EXPECT_LT(e.median_abs, 0.02);
+}
+
+}  // namespace

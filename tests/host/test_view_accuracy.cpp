@@ -1,0 +1,247 @@
+// Stages 1-4 end to end on the virtual rig's small (640 x 512) presets, against the rig's
+// per-pixel ground truth, with the true calibration.
+//
+// Tolerances (issue 4 states them for the full 2464 x 2056 rig: median <= 10 um, RMS <= 25 um,
+// < 0.1 % beyond 0.2 mm). A small-rig camera pixel covers 3.85x the surface, so a pixel
+// averages ~3.85x more of the projector's pattern and of the surface's curvature; the per-pixel
+// noise is the same sensor noise. We scale the median and RMS bounds by 2 (not 3.85: most of
+// the error is sensor noise in the phase, which does not grow with the footprint) and keep the
+// outlier bound as it is: no flying pixels is a property of the filter, not of the resolution.
+//
+// Coverage: of the pixels that at least one projector lights and the camera sees, we count
+// those whose whole 5 x 5 neighbourhood (the reach of the flying-pixel filter) is lit by the
+// same projector and shows the same object, and that this projector's decoder did not have to
+// mask for saturation or too little contrast (dark or grazing surfaces: a legitimate mask).
+// At least 99 % of them must end up in the fused cloud. The raw fraction is printed too.
+#include <gtest/gtest.h>
+
+#if __has_include("slrig/rig.hpp")
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include "slrig/rig.hpp"
+#include "slscan/core/view_pipeline.hpp"
+
+namespace {
+
+using slproto::ProjectorSide;
+using slscan::core::DecodeMask;
+using slscan::core::OrganizedCloud;
+using slscan::core::ViewPipeline;
+using slscan::core::ViewPipelineOptions;
+using slscan::core::ViewResult;
+
+struct ErrorStats {
+  std::size_t points = 0, beyond_0_2mm = 0, without_truth = 0;
+  double median_mm = 0, rms_mm = 0;
+  double fraction_beyond() const { return points ? static_cast<double>(beyond_0_2mm) / static_cast<double>(points) : 0; }
+};
+
+ErrorStats error_stats(const OrganizedCloud& cloud, const slrig::ViewGroundTruth& truth) {
+  ErrorStats stats;
+  std::vector<double> errors;
+  double sum2 = 0;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.valid[i]) continue;
+    ++stats.points;
+    const Eigen::Vector3f g(truth.points[3 * i], truth.points[3 * i + 1], truth.points[3 * i + 2]);
+    if (!g.allFinite()) {
+      ++stats.without_truth;
+      ++stats.beyond_0_2mm;
+      continue;
+    }
+    const double e = (cloud.points[i] - g).norm();
+    errors.push_back(e);
+    sum2 += e * e;
+    if (e > 0.2) ++stats.beyond_0_2mm;
+  }
+  if (!errors.empty()) {
+    std::nth_element(errors.begin(), errors.begin() + static_cast<long>(errors.size() / 2), errors.end());
+    stats.median_mm = errors[errors.size() / 2];
+    stats.rms_mm = std::sqrt(sum2 / static_cast<double>(errors.size()));
+  }
+  return stats;
+}
+
+struct ViewRun {
+  slrig::Scene scene;
+  slproto::RigCalibration calibration;
+  std::unique_ptr<slrig::ViewRenderer> renderer;
+  ViewResult result;
+  std::array<std::vector<DecodeMask>, 2> masks;
+};
+
+ViewRun run_view(const std::string& preset, int view_index, ViewPipelineOptions options = {}) {
+  ViewRun run;
+  auto scene = slrig::scene_preset(preset, slrig::RigSize::small);
+  if (!scene) throw std::runtime_error(scene.error().message);
+  run.scene = *scene;
+  run.calibration = slrig::ground_truth_calibration(run.scene);
+  const double angle = run.scene.view_angles_deg.at(static_cast<std::size_t>(view_index));
+  run.renderer = std::make_unique<slrig::ViewRenderer>(run.scene, angle, view_index);
+  options.decode.bit_depth = run.scene.sensor.bit_depth;
+  ViewPipeline pipeline(run.calibration, options);
+  const slproto::PatternPlan& plan = pipeline.plan();
+  std::vector<std::uint8_t> frame(run.renderer->frame_bytes());
+  const auto width = static_cast<std::size_t>(run.renderer->width());
+  for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right}) {
+    for (std::size_t p = 0; p < plan.size(); ++p) {
+      run.renderer->render(side, p, frame);
+      if (run.scene.sensor.bit_depth > 8) {
+        pipeline.add_frame(side, p, reinterpret_cast<const std::uint16_t*>(frame.data()), width);
+      } else {
+        pipeline.add_frame(side, p, frame.data(), width);
+      }
+    }
+    pipeline.finish_projector(side);
+  }
+  run.result = pipeline.finish_view();
+  // The decoder's masks, for the coverage count: decode the frames once more, standalone.
+  for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right}) {
+    slscan::core::ProjectorViewDecoder decoder(plan, run.renderer->width(), run.renderer->height(), options.decode);
+    for (std::size_t p = 0; p < plan.size(); ++p) {
+      run.renderer->render(side, p, frame);
+      if (run.scene.sensor.bit_depth > 8) {
+        decoder.add_frame(p, reinterpret_cast<const std::uint16_t*>(frame.data()), width);
+      } else {
+        decoder.add_frame(p, frame.data(), width);
+      }
+    }
+    run.masks[static_cast<std::size_t>(side)] = decoder.finish().mask;
+  }
+  return run;
+}
+
+struct Coverage {
+  std::size_t lit_seen = 0, expected = 0, expected_covered = 0, lit_seen_covered = 0;
+  double fraction() const { return expected ? static_cast<double>(expected_covered) / static_cast<double>(expected) : 1; }
+};
+
+Coverage coverage(const ViewRun& run, const OrganizedCloud& fused) {
+  const auto& truth = run.renderer->ground_truth();
+  const int w = truth.width, h = truth.height;
+  Coverage c;
+  auto at = [w](int u, int v) { return static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u); };
+  for (int v = 0; v < h; ++v)
+    for (int u = 0; u < w; ++u) {
+      const std::size_t i = at(u, v);
+      if (!std::isfinite(truth.points[3 * i]) || !(truth.lit[0][i] || truth.lit[1][i])) continue;
+      ++c.lit_seen;
+      c.lit_seen_covered += fused.valid[i] != 0;
+      bool expected = false;
+      for (std::size_t s = 0; s < 2 && !expected; ++s) {
+        const DecodeMask m = run.masks[s][i];
+        if (m == DecodeMask::saturated || m == DecodeMask::low_contrast) continue;
+        bool interior = u >= 2 && v >= 2 && u < w - 2 && v < h - 2;
+        for (int dv = -2; dv <= 2 && interior; ++dv)
+          for (int du = -2; du <= 2 && interior; ++du) {
+            const std::size_t j = at(u + du, v + dv);
+            interior = truth.lit[s][j] && truth.object_id[j] == truth.object_id[i];
+          }
+        expected = interior;
+      }
+      if (!expected) continue;
+      ++c.expected;
+      c.expected_covered += fused.valid[i] != 0;
+    }
+  return c;
+}
+
+// Points that projector `s` gave where it does not light the surface. A camera pixel whose
+// centre is in shadow can still be partly lit at a shadow border, so a point is only counted
+// when no pixel of its 3 x 3 neighbourhood is lit.
+std::size_t points_in_true_shadow(const OrganizedCloud& cloud, const slrig::ViewGroundTruth& truth, std::size_t s) {
+  const int w = truth.width, h = truth.height;
+  std::size_t count = 0;
+  for (int v = 0; v < h; ++v)
+    for (int u = 0; u < w; ++u) {
+      const auto i = static_cast<std::size_t>(v * w + u);
+      if (!cloud.valid[i] || truth.lit[s][i]) continue;
+      bool near_lit = false;
+      for (int dv = -1; dv <= 1; ++dv)
+        for (int du = -1; du <= 1; ++du) {
+          const int uu = u + du, vv = v + dv;
+          if (uu >= 0 && vv >= 0 && uu < w && vv < h && truth.lit[s][static_cast<std::size_t>(vv * w + uu)])
+            near_lit = true;
+        }
+      count += near_lit ? 0 : 1;
+    }
+  return count;
+}
+
+void check_view(const std::string& preset, int view_index) {
+  SCOPED_TRACE(preset + " view " + std::to_string(view_index));
+  ViewPipelineOptions options;
+  options.denoise_turntable = false;  // accuracy of everything the camera sees, table included
+  const ViewRun run = run_view(preset, view_index, options);
+  const auto& truth = run.renderer->ground_truth();
+  for (std::size_t s = 0; s < 2; ++s) {
+    const ErrorStats e = error_stats(run.result.per_projector[s], truth);
+    std::printf("%s view %d %s: %zu points, median %.1f um, RMS %.1f um, beyond 0.2 mm %.4f %% (%zu without truth)\n",
+                preset.c_str(), view_index, s ? "right" : "left", e.points, 1e3 * e.median_mm, 1e3 * e.rms_mm,
+                100 * e.fraction_beyond(), e.without_truth);
+    EXPECT_GT(e.points, 20000u);
+    EXPECT_LT(e.median_mm, 0.020);
+    EXPECT_LT(e.rms_mm, 0.050);
+    EXPECT_LT(e.fraction_beyond(), 0.001);
+    EXPECT_EQ(points_in_true_shadow(run.result.per_projector[s], truth, s), 0u);
+  }
+  const ErrorStats fused = error_stats(run.result.cloud, truth);
+  const Coverage c = coverage(run, run.result.cloud);
+  const auto& f = run.result.fusion;
+  std::printf(
+      "%s view %d fused: %zu points, median %.1f um, RMS %.1f um, beyond 0.2 mm %.4f %%; both %zu, left only %zu, "
+      "right only %zu, rejected %zu; coverage %.3f %% of %zu expected (raw %.3f %% of %zu lit and seen)\n",
+      preset.c_str(), view_index, fused.points, 1e3 * fused.median_mm, 1e3 * fused.rms_mm,
+      100 * fused.fraction_beyond(), f.both, f.left_only, f.right_only, f.rejected, 100 * c.fraction(), c.expected,
+      100.0 * static_cast<double>(c.lit_seen_covered) / static_cast<double>(std::max<std::size_t>(c.lit_seen, 1)),
+      c.lit_seen);
+  EXPECT_LT(fused.median_mm, 0.020);
+  EXPECT_LT(fused.rms_mm, 0.050);
+  EXPECT_LT(fused.fraction_beyond(), 0.001);
+  EXPECT_GT(c.expected, 50000u);
+  EXPECT_GE(c.fraction(), 0.99);
+  // Both projectors light most of what the camera sees; each fills the other's shadow.
+  EXPECT_GT(f.both, f.left_only + f.right_only);
+  EXPECT_GT(f.left_only, 0u);
+  EXPECT_GT(f.right_only, 0u);
+}
+
+TEST(ViewAccuracy, Sphere) { check_view("sphere", 0); }
+TEST(ViewAccuracy, TeacupTwoViews) {
+  check_view("teacup", 0);
+  check_view("teacup", 1);
+}
+
+TEST(ViewAccuracy, TurntableDenoiseLeavesOnlyTheObject) {
+  const ViewRun run = run_view("teacup", 0);
+  const auto& truth = run.renderer->ground_truth();
+  const OrganizedCloud& cloud = run.result.cloud;
+  std::size_t object_points = 0, other_points = 0;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.valid[i]) continue;
+    (truth.object_id[i] >= 2 ? object_points : other_points) += 1;
+  }
+  const auto& t = run.result.turntable;
+  std::printf("teacup view 0 denoise: %zu in, %zu kept, %zu at/below the platform, %zu beyond the radius; "
+              "%zu non-object points left\n",
+              t.input, t.kept, t.below_min_height, t.outside_radius, other_points);
+  EXPECT_GT(t.below_min_height, 10000u) << "the platform is in view and must go";
+  EXPECT_GT(t.outside_radius, 10000u) << "the background wall is in view and must go";
+  EXPECT_EQ(other_points, 0u);
+  // The object itself survives (points within min_height of the platform go with it).
+  std::size_t object_before = 0;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const auto& fused = run.result.per_projector;
+    if ((fused[0].valid[i] || fused[1].valid[i]) && truth.object_id[i] >= 2) ++object_before;
+  }
+  EXPECT_GT(static_cast<double>(object_points), 0.98 * static_cast<double>(object_before));
+}
+
+}  // namespace
+
+#else
+TEST(ViewAccuracy, NeedsTheVirtualRig) { GTEST_SKIP() << "built without slrig (firmware/rig)"; }
+#endif
