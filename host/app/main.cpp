@@ -68,6 +68,18 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   measure_cmd->add_flag("--json", measure.json, "Print the figures as JSON");
 
+#ifdef SLSCAN_WITH_DEMO
+  DemoCommand demo;
+  auto* demo_cmd = app.add_subcommand("demo", "Start slscand on the sim board, scan a scene and reconstruct it");
+  demo_cmd->add_option("--scene", demo.scene, "ballbar, sphere, plane, blade or teacup")->capture_default_str();
+  demo_cmd->add_option("--out", demo.output_dir, "Output folder")->capture_default_str();
+  demo_cmd->add_flag("--small", demo.small, "The 640 x 512 rig: a quick run");
+  demo_cmd->add_option("--config", demo.config_path, "Reconstruction parameters (JSON)")->check(CLI::ExistingFile);
+  demo_cmd->add_option("--slscand", demo.slscand_path, "slscand executable")->check(CLI::ExistingFile);
+  demo_cmd->add_option("--board", demo.board_path, "Sim board file to start from")->check(CLI::ExistingFile);
+
+#endif
+
   CLI11_PARSE(app, argc, argv);
   install_interrupt_handler();
   try {
@@ -76,6 +88,9 @@ int main(int argc, char** argv) {
       std::tie(scan.host, scan.port) = split_host_port(connect);
       return run_scan(scan, console);
     }
+#ifdef SLSCAN_WITH_DEMO
+    if (*demo_cmd) return run_demo(demo, console);
+#endif
     if (*measure_cmd) {
       measure.artefact = want_sphere ? Artefact::sphere : (want_plane ? Artefact::plane : Artefact::ball_bar);
       return run_measure(measure, console);

@@ -304,6 +304,21 @@ int run_scan(const ScanCommand& command, const Console& console) {
   const auto last_frame = Clock::now();
   const core::ScanResult result = stream.finish();
   report["last_frame_to_model_s"] = seconds_since(last_frame);
+  if (command.measure_ball_bar) {
+    try {
+      const core::BallBarResult bar = core::measure_ball_bar(result.model);
+      report["measurement"]["ball_bar"] = ball_bar_to_json(bar);
+      const double error_um = 1000 * (bar.centre_distance_mm - 150.1164);
+      report["measurement"]["ball_bar"]["distance_error_um"] = error_um;
+      console.info("ball bar: centre distance " + std::to_string(bar.centre_distance_mm) +
+                   " mm (reference 150.1164, error " + std::to_string(error_um) + " um); diameters " +
+                   std::to_string(2 * bar.spheres[0].radius_mm) + " / " + std::to_string(2 * bar.spheres[1].radius_mm) +
+                   " mm");
+    } catch (const std::runtime_error& e) {
+      report["measurement"]["ball_bar"] = {{"error", e.what()}};
+      console.warn(std::string("ball bar not measured: ") + e.what());
+    }
+  }
   const OutputFiles files = write_scan_outputs(command.output_dir, result, report);
   print_summary(console, result, files, seconds_since(start));
   return exit_ok;
@@ -312,48 +327,56 @@ int run_scan(const ScanCommand& command, const Console& console) {
 int run_measure(const MeasureCommand& command, const Console& console) {
   const core::PointCloud cloud = io::read_ply(command.model_path);
   json out = {{"model", command.model_path}, {"points", cloud.size()}};
-  switch (command.artefact) {
-    case Artefact::ball_bar: {
-      core::BallBarOptions options;
-      options.nominal_radii_mm = {command.nominal_diameter_a_mm / 2, command.nominal_diameter_b_mm / 2};
-      const core::BallBarResult bar = core::measure_ball_bar(cloud, options);
-      out["ball_bar"] = ball_bar_to_json(bar);
-      out["ball_bar"]["reference_distance_mm"] = command.reference_distance_mm;
-      out["ball_bar"]["distance_error_um"] = 1000 * (bar.centre_distance_mm - command.reference_distance_mm);
-      if (!command.json) {
-        std::printf("ball bar: centre distance %.4f mm (reference %.4f mm, error %+.1f um)\n", bar.centre_distance_mm,
-                    command.reference_distance_mm, 1000 * (bar.centre_distance_mm - command.reference_distance_mm));
-        for (std::size_t i = 0; i < 2; ++i) {
-          const auto& s = bar.spheres[i];
-          std::printf("  sphere %zu: diameter %.4f mm, form error %.1f um, RMS %.1f um, %zu points\n", i,
-                      2 * s.radius_mm, 1000 * s.form_error_mm, 1000 * s.rms_mm, s.point_count);
+  try {
+    switch (command.artefact) {
+      case Artefact::ball_bar: {
+        core::BallBarOptions options;
+        options.nominal_radii_mm = {command.nominal_diameter_a_mm / 2, command.nominal_diameter_b_mm / 2};
+        const core::BallBarResult bar = core::measure_ball_bar(cloud, options);
+        out["ball_bar"] = ball_bar_to_json(bar);
+        out["ball_bar"]["reference_distance_mm"] = command.reference_distance_mm;
+        out["ball_bar"]["distance_error_um"] = 1000 * (bar.centre_distance_mm - command.reference_distance_mm);
+        if (!command.json) {
+          std::printf("ball bar: centre distance %.4f mm (reference %.4f mm, error %+.1f um)\n", bar.centre_distance_mm,
+                      command.reference_distance_mm, 1000 * (bar.centre_distance_mm - command.reference_distance_mm));
+          for (std::size_t i = 0; i < 2; ++i) {
+            const auto& s = bar.spheres[i];
+            std::printf("  sphere %zu: diameter %.4f mm, form error %.1f um, RMS %.1f um, %zu points\n", i,
+                        2 * s.radius_mm, 1000 * s.form_error_mm, 1000 * s.rms_mm, s.point_count);
+          }
         }
+        break;
       }
-      break;
+      case Artefact::sphere: {
+        const core::SphereFit s = core::fit_sphere(cloud.points);
+        out["sphere"] = {{"centre_mm", {s.centre.x(), s.centre.y(), s.centre.z()}},
+                         {"diameter_mm", 2 * s.radius_mm},
+                         {"form_error_mm", s.form_error_mm},
+                         {"rms_mm", s.rms_mm}};
+        if (!command.json)
+          std::printf("sphere: diameter %.4f mm, centre (%.4f, %.4f, %.4f), form error %.1f um, RMS %.1f um\n",
+                      2 * s.radius_mm, s.centre.x(), s.centre.y(), s.centre.z(), 1000 * s.form_error_mm,
+                      1000 * s.rms_mm);
+        break;
+      }
+      case Artefact::plane: {
+        const core::PlaneFit p = core::fit_plane(cloud.points);
+        out["plane"] = {{"normal", {p.normal.x(), p.normal.y(), p.normal.z()}},
+                        {"flatness_mm", p.flatness_mm},
+                        {"rms_mm", p.rms_mm}};
+        if (!command.json)
+          std::printf("plane: flatness %.1f um, RMS %.1f um over %zu points\n", 1000 * p.flatness_mm, 1000 * p.rms_mm,
+                      p.point_count);
+        break;
+      }
     }
-    case Artefact::sphere: {
-      const core::SphereFit s = core::fit_sphere(cloud.points);
-      out["sphere"] = {{"centre_mm", {s.centre.x(), s.centre.y(), s.centre.z()}},
-                       {"diameter_mm", 2 * s.radius_mm},
-                       {"form_error_mm", s.form_error_mm},
-                       {"rms_mm", s.rms_mm}};
-      if (!command.json)
-        std::printf("sphere: diameter %.4f mm, centre (%.4f, %.4f, %.4f), form error %.1f um, RMS %.1f um\n",
-                    2 * s.radius_mm, s.centre.x(), s.centre.y(), s.centre.z(), 1000 * s.form_error_mm, 1000 * s.rms_mm);
-      break;
-    }
-    case Artefact::plane: {
-      const core::PlaneFit p = core::fit_plane(cloud.points);
-      out["plane"] = {
-          {"normal", {p.normal.x(), p.normal.y(), p.normal.z()}}, {"flatness_mm", p.flatness_mm}, {"rms_mm", p.rms_mm}};
-      if (!command.json)
-        std::printf("plane: flatness %.1f um, RMS %.1f um over %zu points\n", 1000 * p.flatness_mm, 1000 * p.rms_mm,
-                    p.point_count);
-      break;
-    }
+  } catch (const io::IoError&) {
+    throw;
+  } catch (const std::exception& e) {  // the fit itself failed: the artefact is not in the cloud
+    console.warn(command.model_path + ": " + e.what());
+    return exit_measurement;
   }
   if (command.json) std::printf("%s\n", out.dump(2).c_str());
-  (void)console;
   return exit_ok;
 }
 

@@ -62,7 +62,8 @@ struct ScanCommand {
   std::uint32_t exposure_us = 8333;
   std::uint32_t pattern_period_us = 10000;
   std::uint32_t settle_ms = 200;
-  std::string token_file;  // shared secret for boards that listen on a network
+  std::string token_file;         // shared secret for boards that listen on a network
+  bool measure_ball_bar = false;  // fit the ball bar in the model and put it in the report
 };
 int run_scan(const ScanCommand& command, const Console& console);
 
@@ -75,5 +76,15 @@ struct MeasureCommand {
   bool json = false;
 };
 int run_measure(const MeasureCommand& command, const Console& console);
+
+struct DemoCommand {
+  std::string scene = "ballbar";
+  std::string output_dir = "out";
+  bool small = false;  // the 640 x 512 rig (fast) instead of the full 2464 x 2056
+  std::string config_path;
+  std::string slscand_path;  // default: next to slscan in the build tree
+  std::string board_path;    // default: boards/sim.toml of the source tree
+};
+int run_demo(const DemoCommand& command, const Console& console);
 
 }  // namespace slscan::app

@@ -80,7 +80,8 @@ TEST(BoardFile, GpioTriggerBoardHasItsLine) {
 }
 
 TEST(BoardFile, MissingFieldIsNamed) {
-  EXPECT_NE(error_of(sim_with("trig_out_1 = 25", "")).find("missing field 'projector.right.trig_out_1'"), std::string::npos);
+  EXPECT_NE(error_of(sim_with("trig_out_1 = 25", "")).find("missing field 'projector.right.trig_out_1'"),
+            std::string::npos);
   EXPECT_NE(error_of(sim_with("device =", "")).find("'camera.device'"), std::string::npos);
   EXPECT_NE(error_of(sim_with("pattern_period_us", "")).find("'timing.pattern_period_us'"), std::string::npos);
 }
@@ -94,10 +95,12 @@ TEST(BoardFile, LineUsedTwiceIsNamedWithBothFunctions) {
 
 TEST(BoardFile, ContradictionsAreRefused) {
   // A trigger line while the projectors trigger the camera.
-  EXPECT_NE(error_of(sim_with("trigger = ", "trigger = \"projector\"\ntrigger_line = 5")).find("camera.trigger_line is set"),
-            std::string::npos);
+  EXPECT_NE(
+      error_of(sim_with("trigger = ", "trigger = \"projector\"\ntrigger_line = 5")).find("camera.trigger_line is set"),
+      std::string::npos);
   // gpio trigger without its line.
-  EXPECT_NE(error_of(sim_with("trigger = ", "trigger = \"gpio\"")).find("needs camera.trigger_line"), std::string::npos);
+  EXPECT_NE(error_of(sim_with("trigger = ", "trigger = \"gpio\"")).find("needs camera.trigger_line"),
+            std::string::npos);
   // gpio trigger on a projector's line.
   EXPECT_NE(error_of(sim_with("trigger = ", "trigger = \"gpio\"\ntrigger_line = 22")).find("assigned twice"),
             std::string::npos);

@@ -135,7 +135,7 @@ TEST(GrblTurntable, StalledMotorIsDetectedAndStopped) {
   ASSERT_FALSE(reached.ok());
   EXPECT_EQ(reached.error().code, Errc::hardware);
   EXPECT_NE(reached.error().message.find("stalled at 25.000"), std::string::npos) << reached.error().message;
-  EXPECT_FALSE(rig.emulator->moving());  // the driver stopped it
+  EXPECT_FALSE(rig.emulator->moving());   // the driver stopped it
   EXPECT_GE(rig.emulator->resets(), 2u);  // connect + stop
   // Once the fault is gone the same driver works again.
   rig.emulator->set_faults({});

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "slproto/capture.hpp"
+#include "slproto/crc32c.hpp"
 #include "slproto/framing.hpp"
 
 namespace slproto::fuzz {
@@ -76,17 +77,54 @@ inline DecodeSummary decode_stream(std::span<const std::byte> data, std::uint32_
   return summary;
 }
 
-inline void check_frame_decoder(const std::uint8_t* bytes, std::size_t size) {
-  const std::span<const std::byte> data{reinterpret_cast<const std::byte*>(bytes), size};
+// Mutations almost never keep three CRCs valid, so on its own the fuzzer would rarely get
+// past them to the protobuf parsing and the geometry checks. This rewrites every CRC of the
+// records in `stream` (as far as the bytes reach) so the mutated content itself is tested.
+inline void repair_crcs(std::span<std::byte> stream) {
+  auto get_u32 = [](const std::byte* p) {
+    std::uint32_t v = 0;
+    for (int i = 0; i < 4; ++i) v |= std::to_integer<std::uint32_t>(p[i]) << (8 * i);
+    return v;
+  };
+  auto put_u32 = [](std::byte* p, std::uint32_t v) {
+    for (int i = 0; i < 4; ++i) p[i] = static_cast<std::byte>(v >> (8 * i));
+  };
+  std::size_t position = 0;
+  while (position + wire_header_size <= stream.size()) {
+    std::byte* header = stream.data() + position;
+    const std::uint64_t control_length = get_u32(header + 8);
+    const std::uint64_t payload_length = get_u32(header + 12);
+    const std::uint64_t end = position + wire_header_size + control_length + payload_length;
+    if (end <= stream.size()) {
+      std::byte* control = header + wire_header_size;
+      put_u32(header + 16, crc32c(control, control_length, crc32c(header, 16)));
+      put_u32(header + 20, crc32c(control + control_length, payload_length));
+    }
+    put_u32(header + 28, crc32c(header, 28));
+    if (end > stream.size()) break;
+    position = end;
+  }
+}
+
+inline void check_stream(std::span<const std::byte> data) {
   const DecodeSummary whole = decode_stream(data, 0);
-  const DecodeSummary pieces = decode_stream(data, static_cast<std::uint32_t>(size * 2654435761u));
+  const DecodeSummary pieces = decode_stream(data, static_cast<std::uint32_t>(data.size() * 2654435761u));
   // How the bytes are split must not change what is decoded.
   if (whole.records != pieces.records || whole.failed != pieces.failed || whole.code != pieces.code)
     fuzz_fail("decoding depends on how the input is chunked");
 }
 
-inline void check_capture_reader(const std::uint8_t* bytes, std::size_t size) {
+inline void check_frame_decoder(const std::uint8_t* bytes, std::size_t size) {
   const std::span<const std::byte> data{reinterpret_cast<const std::byte*>(bytes), size};
+  check_stream(data);
+  std::vector<std::byte> repaired(data.begin(), data.end());
+  repair_crcs(repaired);
+  check_stream(repaired);
+}
+
+inline void check_capture_bytes(std::span<const std::byte> data) {
+  const auto* bytes = data.data();
+  const std::size_t size = data.size();
   std::size_t memory_records = 0;
   auto in_memory = read_capture_bytes(
       data,
@@ -126,6 +164,18 @@ inline void check_capture_reader(const std::uint8_t* bytes, std::size_t size) {
   if (in_memory.ok() && in_memory->has_value() && reader.ok() &&
       (*in_memory)->record_offset != reader->truncation()->record_offset)
     fuzz_fail("file and memory readers disagree on where the file is cut");
+}
+
+inline void check_capture_reader(const std::uint8_t* bytes, std::size_t size) {
+  const std::span<const std::byte> data{reinterpret_cast<const std::byte*>(bytes), size};
+  check_capture_bytes(data);
+  if (size >= capture_header_size) {  // again with every CRC made valid (see repair_crcs)
+    std::vector<std::byte> repaired(data.begin(), data.end());
+    const std::uint32_t crc = crc32c(repaired.data(), 28);
+    for (int i = 0; i < 4; ++i) repaired[28 + static_cast<std::size_t>(i)] = static_cast<std::byte>(crc >> (8 * i));
+    repair_crcs(std::span(repaired).subspan(capture_header_size));
+    check_capture_bytes(repaired);
+  }
 }
 
 }  // namespace slproto::fuzz

@@ -67,23 +67,27 @@ const Fixture& fixture() {
                                                         {20, -25, -15, -25, 0, 560}, {-25, 20, 20, 25, -5, 545},
                                                         {10, 35, 0, 0, 10, 590},     {-35, -10, -20, 5, -20, 535}};
     for (std::size_t p = 0; p < free_poses.size(); ++p) {
-      const auto& a = free_poses[p];
-      RigidTransform cam_from_board = rotation({1, 0, 0}, a[0]) * rotation({0, 1, 0}, a[1]) * rotation({0, 0, 1}, a[2]);
+      const auto& angles = free_poses[p];
+      RigidTransform cam_from_board =
+          rotation({1, 0, 0}, angles[0]) * rotation({0, 1, 0}, angles[1]) * rotation({0, 0, 1}, angles[2]);
       const Vec3 m = cam_from_board.rotate(middle);
-      cam_from_board.t = {a[3] - m[0], a[4] - m[1], a[5] - m[2]};
+      cam_from_board.t = {angles[3] - m[0], angles[4] - m[1], angles[5] - m[2]};
       slrig::Scene scene = out.scene;
       slrig::SceneObject board = out.board;
       board.on_turntable = false;
       board.table_from_object = cam_from_board;
       scene.objects.push_back(board);
-      const slrig::ViewRenderer renderer(scene, 0.0, static_cast<int>(p));
       const int pose = static_cast<int>(capture.poses.size());
       capture.poses.push_back({"free " + std::to_string(p), false, 0});
-      for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right})
-        for (std::size_t a = 0; a < 2; ++a)
+      for (std::size_t a = 0; a < 2; ++a) {
+        // The renderer codes the axis of its scene's plan: one per axis.
+        scene.pattern_plan = plans[a].config();
+        const slrig::ViewRenderer renderer(scene, 0.0, static_cast<int>(p));
+        for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right})
           for (std::size_t i = 0; i < plans[a].size(); ++i)
             capture.frames.push_back({pose, CalibrationFrame::Kind::pattern, side, plans[a].config().axis, i,
                                       render_frame(renderer, side, plans[a], i)});
+      }
     }
 
     // Turntable poses: the board lying face up on the platform (its z into the board points

@@ -233,7 +233,10 @@ TEST(CalibrationSolve, TurntableNeedsRotation) {
   const Truth truth;
   std::mt19937 rng(4);
   TableCase table = table_views(truth, truth.target, 0.05, rng);
-  for (auto& view : table.views) view.camera = table.views[0].camera;
+  for (auto& view : table.views) {
+    view.camera = table.views[0].camera;
+    view.commanded_angle_deg = 0;
+  }
   EXPECT_THROW(calibrate_turntable(truth.target, truth.camera, table.views, 150), std::invalid_argument);
 }
 

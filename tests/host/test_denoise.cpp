@@ -34,9 +34,9 @@ TEST(TurntableDenoise, KeepsTheObjectDropsPlatformBelowAndBeyond) {
     bool keep;
   };
   const std::vector<Case> cases = {
-      {0, 0, 10, true},      {100, 50, 0.5, true},  {140, 0, 80, true},   // object
-      {30, 20, 0.0, false},  {80, -40, 0.1, false}, {0, 0, -5, false},    // platform, under it
-      {0, 160, 10, false},   {200, 0, 50, false},   {0, 400, -30, false},  // beyond the radius
+      {0, 0, 10, true},     {100, 50, 0.5, true},  {140, 0, 80, true},    // object
+      {30, 20, 0.0, false}, {80, -40, 0.1, false}, {0, 0, -5, false},     // platform, under it
+      {0, 160, 10, false},  {200, 0, 50, false},   {0, 400, -30, false},  // beyond the radius
   };
   PointCloud cloud;
   for (const auto& c : cases) cloud.points.push_back(in_camera(table, c.x, c.y, c.z));

@@ -111,7 +111,8 @@ TEST(FlyingPixels, KeepsSteepSmoothSurfacesAndDropsSpecks) {
   // A surface at grazing incidence: 5 mm of depth per pixel, curved.
   for (int v = 0; v < 10; ++v)
     for (int u = 0; u < 10; ++u) {
-      const float z = 300.0f + 5.0f * static_cast<float>(u) + 0.02f * static_cast<float>(u * u) + 0.1f * static_cast<float>(v);
+      const float z =
+          300.0f + 5.0f * static_cast<float>(u) + 0.02f * static_cast<float>(u * u) + 0.1f * static_cast<float>(v);
       set(cloud, u, v, {0, 0, z}, 1);
     }
   set(cloud, 11, 11, {0, 0, 500}, 1);  // a lone valid pixel with no neighbours

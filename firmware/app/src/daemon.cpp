@@ -19,10 +19,14 @@ constexpr const char* kSoftwareVersion = "slscand 0.1.0";
 
 const char* state_name(pb::ScanState state) {
   switch (state) {
-    case pb::SCAN_STATE_DONE: return "done";
-    case pb::SCAN_STATE_ABORTED: return "aborted";
-    case pb::SCAN_STATE_FAILED: return "failed";
-    default: return "running";
+    case pb::SCAN_STATE_DONE:
+      return "done";
+    case pb::SCAN_STATE_ABORTED:
+      return "aborted";
+    case pb::SCAN_STATE_FAILED:
+      return "failed";
+    default:
+      return "running";
   }
 }
 }  // namespace
@@ -49,7 +53,8 @@ slproto::Result<std::unique_ptr<Daemon>> Daemon::create(hal::BoardConfig board, 
   server_options.connection = options.connection;
   auto server = slproto::Server::listen(address, static_cast<std::uint16_t>(port), server_options);
   if (!server) return std::move(server).error();
-  return std::unique_ptr<Daemon>(new Daemon(std::move(board), std::move(devices), std::move(options), std::move(*server)));
+  return std::unique_ptr<Daemon>(
+      new Daemon(std::move(board), std::move(devices), std::move(options), std::move(*server)));
 }
 
 Daemon::Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server)
@@ -88,9 +93,10 @@ void Daemon::handle_connection(slproto::Connection& connection) {
   slproto::ServerIdentity identity;
   identity.board_name = board_.name;
   identity.software_version = kSoftwareVersion;
-  identity.capabilities = pb::CAPABILITY_TURNTABLE | pb::CAPABILITY_TWO_PROJECTORS | pb::CAPABILITY_TIMING_LOG |
-                          (board_.trigger_source == hal::CameraTriggerSource::projector ? pb::CAPABILITY_HARDWARE_TRIGGER : 0) |
-                          (board_.is_sim() ? pb::CAPABILITY_SIMULATED : 0);
+  identity.capabilities =
+      pb::CAPABILITY_TURNTABLE | pb::CAPABILITY_TWO_PROJECTORS | pb::CAPABILITY_TIMING_LOG |
+      (board_.trigger_source == hal::CameraTriggerSource::projector ? pb::CAPABILITY_HARDWARE_TRIGGER : 0) |
+      (board_.is_sim() ? pb::CAPABILITY_SIMULATED : 0);
   identity.camera.set_width(static_cast<std::uint32_t>(devices_.camera_format.width));
   identity.camera.set_height(static_cast<std::uint32_t>(devices_.camera_format.height));
   identity.camera.add_pixel_formats(to_proto(devices_.camera_format.pixel_format));
@@ -109,11 +115,12 @@ void Daemon::handle_connection(slproto::Connection& connection) {
       const pb::ScanRequest copy = *request;  // the message buffer is reused by the next receive
       if (!run_scan(connection, copy)) return;
     } else if (const auto* abort = message->get<pb::Abort>()) {
-      (void)connection.send(slproto::to_proto(make_error(Errc::invalid_argument, "no scan is running"), abort->scan_id()));
+      (void)connection.send(
+          slproto::to_proto(make_error(Errc::invalid_argument, "no scan is running"), abort->scan_id()));
     } else if (message->get<pb::Error>() == nullptr) {
       (void)connection.send(slproto::to_proto(
-          make_error(Errc::unsupported, std::string("slscand does not accept ") + slproto::message_type_name(message->type()) +
-                                            " messages"),
+          make_error(Errc::unsupported, std::string("slscand does not accept ") +
+                                            slproto::message_type_name(message->type()) + " messages"),
           0));
     }
   }
@@ -222,9 +229,12 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
   }
   {
     std::lock_guard lock(stats_mutex_);
-    if (outcome.state == pb::SCAN_STATE_DONE) stats_.scans_done++;
-    else if (outcome.state == pb::SCAN_STATE_ABORTED) stats_.scans_aborted++;
-    else stats_.scans_failed++;
+    if (outcome.state == pb::SCAN_STATE_DONE)
+      stats_.scans_done++;
+    else if (outcome.state == pb::SCAN_STATE_ABORTED)
+      stats_.scans_aborted++;
+    else
+      stats_.scans_failed++;
     if (outcome.state != pb::SCAN_STATE_DONE) stats_.last_error = outcome.error.message;
   }
   std::fprintf(stderr, "slscand: scan %llu %s: %llu of %llu frames sent%s%s\n",

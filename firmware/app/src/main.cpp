@@ -52,8 +52,10 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
   request.add_projectors(0);
   request.add_projectors(1);
   *request.mutable_plan() = slproto::to_proto(slproto::PatternPlanConfig{});
-  request.set_exposure_us(static_cast<std::uint32_t>(exposure_us > 0 ? exposure_us : static_cast<long>(board.pattern_exposure_us)));
-  request.set_pattern_period_us(static_cast<std::uint32_t>(period_us > 0 ? period_us : static_cast<long>(board.pattern_period_us)));
+  request.set_exposure_us(
+      static_cast<std::uint32_t>(exposure_us > 0 ? exposure_us : static_cast<long>(board.pattern_exposure_us)));
+  request.set_pattern_period_us(
+      static_cast<std::uint32_t>(period_us > 0 ? period_us : static_cast<long>(board.pattern_period_us)));
   request.set_timing_events(true);
   request.set_pixel_format(slscand::to_proto(devices.camera_format.pixel_format));
   auto plan = slscand::make_scan_plan(request, board, devices.camera_format);
@@ -87,8 +89,9 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
               board.name.c_str(), static_cast<unsigned long long>(outcome.frames_captured), outcome.views_completed,
               plan->projectors.size(), plan->patterns.size(), request.exposure_us(),
               static_cast<double>(outcome.duration_ns) * 1e-9);
-  std::fputs(slscand::make_timing_report(outcome.frames, static_cast<double>(plan->period_ns) / 1000.0).to_text().c_str(),
-             stdout);
+  std::fputs(
+      slscand::make_timing_report(outcome.frames, static_cast<double>(plan->period_ns) / 1000.0).to_text().c_str(),
+      stdout);
   return 0;
 }
 
@@ -107,18 +110,27 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (arg == "--board") board_path = value("--board");
-    else if (arg == "--bind") bind = value("--bind");
-    else if (arg == "--timing-log") timing_dir = value("--timing-log");
-    else if (arg == "--token") token = value("--token");
-    else if (arg == "--timing-report") report = true;
-    else if (arg == "--no-realtime") realtime = false;
+    if (arg == "--board")
+      board_path = value("--board");
+    else if (arg == "--bind")
+      bind = value("--bind");
+    else if (arg == "--timing-log")
+      timing_dir = value("--timing-log");
+    else if (arg == "--token")
+      token = value("--token");
+    else if (arg == "--timing-report")
+      report = true;
+    else if (arg == "--no-realtime")
+      realtime = false;
     else if (arg == "--list-backends") {
       std::printf("%s\n", slscand::hal::available_backends().c_str());
       return 0;
     } else if (arg == "--port" || arg == "--views" || arg == "--exposure-us" || arg == "--period-us") {
       const char* text = value(arg.c_str());
-      long* out = arg == "--port" ? &port : arg == "--views" ? &views : arg == "--exposure-us" ? &exposure_us : &period_us;
+      long* out = arg == "--port"          ? &port
+                  : arg == "--views"       ? &views
+                  : arg == "--exposure-us" ? &exposure_us
+                                           : &period_us;
       const long max = arg == "--port" ? 65535 : arg == "--views" ? 360 : 10'000'000;
       if (!parse_int(text, arg == "--port" ? 0 : 1, max, *out)) {
         std::fprintf(stderr, "slscand: %s: '%s' is not an integer in range\n", arg.c_str(), text);

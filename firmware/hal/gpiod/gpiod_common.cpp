@@ -12,7 +12,8 @@ GpiodChipSpec parse_gpiod_chip_spec(const std::string& chip) {
     spec.path = chip;
   } else if (chip.rfind("gpiochip", 0) == 0) {
     spec.path = "/dev/" + chip;
-  } else if (std::all_of(chip.begin(), chip.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); })) {
+  } else if (std::all_of(chip.begin(), chip.end(),
+                         [](char c) { return std::isdigit(static_cast<unsigned char>(c)); })) {
     spec.path = "/dev/gpiochip" + chip;
   } else {
     spec.label = chip;

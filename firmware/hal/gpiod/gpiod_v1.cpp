@@ -2,9 +2,9 @@
 // waited for together with gpiod_line_event_wait_bulk.
 #include <gpiod.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
-#include <algorithm>
 
 #include "slscand/hal/gpiod/gpiod_chip.hpp"
 
@@ -19,10 +19,18 @@ GpiodV1LineRequest gpiod_v1_request_for(const LineSettings& line) {
     request.request_type = GPIOD_LINE_REQUEST_DIRECTION_OUTPUT;
   } else {
     switch (line.edges) {
-      case EdgeDetection::none: request.request_type = GPIOD_LINE_REQUEST_DIRECTION_INPUT; break;
-      case EdgeDetection::rising: request.request_type = GPIOD_LINE_REQUEST_EVENT_RISING_EDGE; break;
-      case EdgeDetection::falling: request.request_type = GPIOD_LINE_REQUEST_EVENT_FALLING_EDGE; break;
-      case EdgeDetection::both: request.request_type = GPIOD_LINE_REQUEST_EVENT_BOTH_EDGES; break;
+      case EdgeDetection::none:
+        request.request_type = GPIOD_LINE_REQUEST_DIRECTION_INPUT;
+        break;
+      case EdgeDetection::rising:
+        request.request_type = GPIOD_LINE_REQUEST_EVENT_RISING_EDGE;
+        break;
+      case EdgeDetection::falling:
+        request.request_type = GPIOD_LINE_REQUEST_EVENT_FALLING_EDGE;
+        break;
+      case EdgeDetection::both:
+        request.request_type = GPIOD_LINE_REQUEST_EVENT_BOTH_EDGES;
+        break;
     }
   }
   request.flags = line.active_low ? GPIOD_LINE_REQUEST_FLAG_ACTIVE_LOW : 0;
@@ -126,7 +134,8 @@ class GpiodV1Request final : public LineRequest {
         out.push_back(event);
       }
     }
-    std::sort(out.begin(), out.end(), [](const EdgeEvent& a, const EdgeEvent& b) { return a.timestamp_ns < b.timestamp_ns; });
+    std::sort(out.begin(), out.end(),
+              [](const EdgeEvent& a, const EdgeEvent& b) { return a.timestamp_ns < b.timestamp_ns; });
     return out;
   }
 

@@ -36,10 +36,14 @@ struct EventBufferDeleter {
 
 gpiod_line_edge edge_of(EdgeDetection edges) {
   switch (edges) {
-    case EdgeDetection::none: return GPIOD_LINE_EDGE_NONE;
-    case EdgeDetection::rising: return GPIOD_LINE_EDGE_RISING;
-    case EdgeDetection::falling: return GPIOD_LINE_EDGE_FALLING;
-    case EdgeDetection::both: return GPIOD_LINE_EDGE_BOTH;
+    case EdgeDetection::none:
+      return GPIOD_LINE_EDGE_NONE;
+    case EdgeDetection::rising:
+      return GPIOD_LINE_EDGE_RISING;
+    case EdgeDetection::falling:
+      return GPIOD_LINE_EDGE_FALLING;
+    case EdgeDetection::both:
+      return GPIOD_LINE_EDGE_BOTH;
   }
   return GPIOD_LINE_EDGE_NONE;
 }
@@ -56,7 +60,9 @@ struct ChipHandle {
 class GpiodV2Request final : public LineRequest {
  public:
   GpiodV2Request(std::shared_ptr<ChipHandle> chip, LineRequestConfig config, gpiod_line_request* request)
-      : chip_(std::move(chip)), config_(std::move(config)), request_(request),
+      : chip_(std::move(chip)),
+        config_(std::move(config)),
+        request_(request),
         buffer_(gpiod_edge_event_buffer_new(64)) {}
   ~GpiodV2Request() override { gpiod_line_request_release(request_); }
   GpiodV2Request(const GpiodV2Request&) = delete;
@@ -68,7 +74,8 @@ class GpiodV2Request final : public LineRequest {
       return make_error(Errc::invalid_argument, chip_->name + ": line " + std::to_string(offset) +
                                                     " is not an output of request '" + config_.consumer + "'");
     }
-    if (gpiod_line_request_set_value(request_, offset, value ? GPIOD_LINE_VALUE_ACTIVE : GPIOD_LINE_VALUE_INACTIVE) != 0) {
+    if (gpiod_line_request_set_value(request_, offset, value ? GPIOD_LINE_VALUE_ACTIVE : GPIOD_LINE_VALUE_INACTIVE) !=
+        0) {
       return make_error(Errc::io_error, chip_->name + ": setting line " + std::to_string(offset) + ": " + errno_text());
     }
     return slproto::Ok{};
@@ -136,8 +143,8 @@ class GpiodV2Chip final : public GpioChip {
     gpiod_request_config_set_event_buffer_size(request_config.get(), 64);
     gpiod_line_request* request = gpiod_chip_request_lines(chip_->chip, request_config.get(), line_config->get());
     if (request == nullptr) {
-      return make_error(Errc::io_error, chip_->name + ": cannot request the lines of '" + config.consumer + "': " +
-                                            errno_text());
+      return make_error(Errc::io_error,
+                        chip_->name + ": cannot request the lines of '" + config.consumer + "': " + errno_text());
     }
     return std::unique_ptr<LineRequest>(new GpiodV2Request(chip_, config, request));
   }
@@ -163,8 +170,8 @@ Result<GpiodLineConfigPtr> gpiod_v2_line_config(const LineRequestConfig& config)
     int rv = 0;
     if (line.direction == LineDirection::output) {
       rv |= gpiod_line_settings_set_direction(settings.get(), GPIOD_LINE_DIRECTION_OUTPUT);
-      rv |= gpiod_line_settings_set_output_value(settings.get(), line.initial_value ? GPIOD_LINE_VALUE_ACTIVE
-                                                                                    : GPIOD_LINE_VALUE_INACTIVE);
+      rv |= gpiod_line_settings_set_output_value(
+          settings.get(), line.initial_value ? GPIOD_LINE_VALUE_ACTIVE : GPIOD_LINE_VALUE_INACTIVE);
     } else {
       rv |= gpiod_line_settings_set_direction(settings.get(), GPIOD_LINE_DIRECTION_INPUT);
       rv |= gpiod_line_settings_set_edge_detection(settings.get(), edge_of(line.edges));

@@ -1,14 +1,14 @@
 #include "slscand/hal/libcamera/libcamera_camera.hpp"
 
+#include <libcamera/libcamera.h>
+#include <libcamera/version.h>
 #include <sys/mman.h>
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <condition_variable>
+#include <cstring>
 #include <deque>
-#include <libcamera/libcamera.h>
-#include <libcamera/version.h>
 #include <mutex>
 
 namespace slscand::hal {
@@ -18,9 +18,12 @@ using slproto::make_error;
 
 libcamera::PixelFormat libcamera_pixel_format_for(PixelFormat format) {
   switch (format) {
-    case PixelFormat::mono8: return libcamera::formats::R8;
-    case PixelFormat::mono10: return libcamera::formats::R10;
-    case PixelFormat::mono12: return libcamera::formats::R12;
+    case PixelFormat::mono8:
+      return libcamera::formats::R8;
+    case PixelFormat::mono10:
+      return libcamera::formats::R10;
+    case PixelFormat::mono12:
+      return libcamera::formats::R12;
   }
   return libcamera::formats::R8;
 }
@@ -31,8 +34,8 @@ Result<std::unique_ptr<libcamera::ControlList>> libcamera_request_controls(const
                                                   " us is not a positive 32-bit microsecond count");
   }
   if (!(settings.gain >= 1.0)) {
-    return make_error(Errc::invalid_argument, "libcamera: analogue gain " + std::to_string(settings.gain) +
-                                                  " is below 1");
+    return make_error(Errc::invalid_argument,
+                      "libcamera: analogue gain " + std::to_string(settings.gain) + " is below 1");
   }
   if (settings.frame_period_us != 0 && !(settings.frame_period_us >= settings.exposure_us)) {
     return make_error(Errc::invalid_argument, "libcamera: frame period " + std::to_string(settings.frame_period_us) +
@@ -83,8 +86,8 @@ class LibcameraCamera final : public Camera {
         stream.pixelFormat != libcamera_pixel_format_for(wanted.pixel_format) ||
         stream.size != libcamera::Size(static_cast<unsigned>(wanted.width), static_cast<unsigned>(wanted.height))) {
       return make_error(Errc::unsupported, describe() + " offers " + stream.toString() + " when asked for " +
-                                               std::to_string(wanted.width) + "x" + std::to_string(wanted.height) + "-" +
-                                               libcamera_pixel_format_for(wanted.pixel_format).toString());
+                                               std::to_string(wanted.width) + "x" + std::to_string(wanted.height) +
+                                               "-" + libcamera_pixel_format_for(wanted.pixel_format).toString());
     }
     if (camera_->configure(config_.get()) != 0) {
       return make_error(Errc::hardware, describe() + ": configure() refused " + stream.toString());
@@ -128,7 +131,8 @@ class LibcameraCamera final : public Camera {
     running_ = true;
     for (auto& request : requests_) {
       request->controls().merge(**controls);
-      if (camera_->queueRequest(request.get()) != 0) return make_error(Errc::hardware, describe() + ": queueRequest failed");
+      if (camera_->queueRequest(request.get()) != 0)
+        return make_error(Errc::hardware, describe() + ": queueRequest failed");
     }
     return slproto::Ok{};
   }
@@ -153,7 +157,8 @@ class LibcameraCamera final : public Camera {
     {
       std::unique_lock lock(mutex_);
       if (!cv_.wait_for(lock, std::chrono::nanoseconds(timeout_ns), [&] { return !completed_.empty(); })) {
-        return make_error(Errc::timeout, describe() + ": no frame within " + std::to_string(timeout_ns / kMilli) + " ms");
+        return make_error(Errc::timeout,
+                          describe() + ": no frame within " + std::to_string(timeout_ns / kMilli) + " ms");
       }
       request = completed_.front();
       completed_.pop_front();
@@ -244,7 +249,8 @@ Result<std::unique_ptr<Camera>> open_libcamera_camera(const std::string& id) {
     std::string known;
     for (const auto& c : manager->cameras()) known += (known.empty() ? "" : ", ") + c->id();
     manager->stop();
-    return make_error(Errc::io_error, "libcamera: no camera '" + id + "' (found: " + (known.empty() ? "none" : known) + ")");
+    return make_error(Errc::io_error,
+                      "libcamera: no camera '" + id + "' (found: " + (known.empty() ? "none" : known) + ")");
   }
   if (camera->acquire() != 0) {
     const std::string name = camera->id();

@@ -23,10 +23,14 @@ std::string sp_error_text(sp_return code) {
     return text;
   }
   switch (code) {
-    case SP_ERR_ARG: return "invalid argument";
-    case SP_ERR_MEM: return "out of memory";
-    case SP_ERR_SUPP: return "not supported";
-    default: return "error " + std::to_string(static_cast<int>(code));
+    case SP_ERR_ARG:
+      return "invalid argument";
+    case SP_ERR_MEM:
+      return "out of memory";
+    case SP_ERR_SUPP:
+      return "not supported";
+    default:
+      return "error " + std::to_string(static_cast<int>(code));
   }
 }
 
@@ -55,7 +59,8 @@ class LibSerialPort final : public SerialPort {
   Result<std::size_t> read_some(std::span<char> buffer, Nanos timeout_ns) override {
     // Wait for the first byte, then take whatever else is already there.
     const unsigned ms = static_cast<unsigned>(std::max<Nanos>(0, (timeout_ns + kMilli - 1) / kMilli));
-    sp_return n = ms == 0 ? sp_nonblocking_read(port_, buffer.data(), 1) : sp_blocking_read(port_, buffer.data(), 1, ms);
+    sp_return n =
+        ms == 0 ? sp_nonblocking_read(port_, buffer.data(), 1) : sp_blocking_read(port_, buffer.data(), 1, ms);
     if (n < 0) return make_error(Errc::io_error, "serial port " + path_ + ": read failed: " + sp_error_text(n));
     if (n == 0) return std::size_t{0};
     const sp_return more = sp_nonblocking_read(port_, buffer.data() + 1, buffer.size() - 1);
@@ -105,8 +110,8 @@ Result<std::unique_ptr<SerialPort>> open_libserialport_port(const std::string& p
     const std::string text = sp_error_text(rv);
     sp_close(port);
     sp_free_port(port);
-    return make_error(Errc::io_error, "cannot configure serial port " + path + " at " + std::to_string(baud) +
-                                          " baud: " + text);
+    return make_error(Errc::io_error,
+                      "cannot configure serial port " + path + " at " + std::to_string(baud) + " baud: " + text);
   }
   return std::unique_ptr<SerialPort>(new LibSerialPort(port, path));
 }

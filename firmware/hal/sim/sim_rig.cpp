@@ -1,5 +1,8 @@
 #include "slscand/hal/sim/sim_rig.hpp"
 
+#include <pthread.h>
+#include <sched.h>
+
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
@@ -9,9 +12,6 @@
 #include <mutex>
 #include <optional>
 #include <thread>
-
-#include <pthread.h>
-#include <sched.h>
 
 namespace slscand::hal::sim {
 
@@ -30,10 +30,14 @@ std::chrono::steady_clock::time_point to_steady(Nanos ns) {
 
 Result<PixelFormat> format_for_bit_depth(int bits) {
   switch (bits) {
-    case 8: return PixelFormat::mono8;
-    case 10: return PixelFormat::mono10;
-    case 12: return PixelFormat::mono12;
-    default: break;
+    case 8:
+      return PixelFormat::mono8;
+    case 10:
+      return PixelFormat::mono10;
+    case 12:
+      return PixelFormat::mono12;
+    default:
+      break;
   }
   return make_error(Errc::unsupported, "sim camera: scene bit depth " + std::to_string(bits) + " has no pixel format");
 }
@@ -149,8 +153,8 @@ class SimLineRequest final : public LineRequest {
   Result<bool> get_value(unsigned offset) override {
     const LineSettings* line = config_.find(offset);
     if (line == nullptr) {
-      return make_error(Errc::invalid_argument, "sim GPIO: line " + std::to_string(offset) + " is not in request '" +
-                                                    config_.consumer + "'");
+      return make_error(Errc::invalid_argument,
+                        "sim GPIO: line " + std::to_string(offset) + " is not in request '" + config_.consumer + "'");
     }
     std::lock_guard lock(core_->mutex);
     return core_->values[offset] != line->active_low;
@@ -376,8 +380,8 @@ class SimGpioChip final : public GpioChip {
                                                       " lines)");
       }
       if (core_->owner[line.offset] != nullptr) {
-        return make_error(Errc::busy, "sim GPIO: line " + std::to_string(line.offset) + " (" + line.name +
-                                          ") is already requested");
+        return make_error(
+            Errc::busy, "sim GPIO: line " + std::to_string(line.offset) + " (" + line.name + ") is already requested");
       }
     }
     auto request = std::make_unique<SimLineRequest>(core_, config);

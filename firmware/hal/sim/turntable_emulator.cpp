@@ -189,22 +189,32 @@ void TurntableEmulator::handle_line(const std::string& raw, Nanos /*now*/) {
     i += static_cast<std::size_t>(end - start);
     switch (letter) {
       case 'G':
-        if (value == 90) relative_ = false;
-        else if (value == 91) relative_ = true;
-        else if (value == 0 || value == 1) motion = true;
-        else if (value == 4) dwell = true;
-        else if (value != 21) return reply("error:20");
+        if (value == 90)
+          relative_ = false;
+        else if (value == 91)
+          relative_ = true;
+        else if (value == 0 || value == 1)
+          motion = true;
+        else if (value == 4)
+          dwell = true;
+        else if (value != 21)
+          return reply("error:20");
         break;
-      case 'X': has_x = true; x = value; break;
+      case 'X':
+        has_x = true;
+        x = value;
+        break;
       case 'F':
         if (value <= 0) return reply("error:4");
         speed_ = std::min(value / 60.0, max_speed_);
         break;
-      case 'P': break;
+      case 'P':
+        break;
       case 'M':
         if (value != 17 && value != 18) return reply("error:20");
         break;
-      default: return reply("error:20");
+      default:
+        return reply("error:20");
     }
   }
   if (has_x) {

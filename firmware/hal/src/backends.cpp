@@ -113,8 +113,8 @@ slproto::Status BoardDevices::load_patterns(const slproto::PatternPlan& plan, Na
 #endif
   // DLPC350 pattern memory holds at most 256 one-bit (32 eight-bit) patterns per sequence.
   if (plan.size() > 32) {
-    return make_error(Errc::unsupported, "the projectors hold at most 32 8-bit patterns; the plan has " +
-                                             std::to_string(plan.size()));
+    return make_error(Errc::unsupported,
+                      "the projectors hold at most 32 8-bit patterns; the plan has " + std::to_string(plan.size()));
   }
   (void)exposure_ns;
   return slproto::Ok{};
@@ -147,8 +147,8 @@ slproto::Result<BoardDevices> open_board_devices(const BoardConfig& board, const
   if (board.trigger_source == CameraTriggerSource::gpio) {
     LineRequestConfig config;
     config.consumer = "slscand camera trigger";
-    config.lines = {{*board.camera_trigger_line, LineDirection::output, false, EdgeDetection::none, false,
-                     "camera.trigger_line"}};
+    config.lines = {
+        {*board.camera_trigger_line, LineDirection::output, false, EdgeDetection::none, false, "camera.trigger_line"}};
     auto request = devices.chip->request_lines(config);
     if (!request) return std::move(request).error();
     devices.camera_trigger = std::move(*request);

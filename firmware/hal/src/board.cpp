@@ -116,18 +116,21 @@ slproto::Status BoardConfig::check() const {
   const std::string where = (source_path.empty() ? "board '" + name + "'" : source_path) + ": ";
   auto fail = [&](const std::string& message) { return make_error(Errc::invalid_argument, where + message); };
 
-  if (gpio_backend != "gpiod" && gpio_backend != "sim") return fail("gpio.backend must be \"gpiod\" or \"sim\", not \"" + gpio_backend + "\"");
+  if (gpio_backend != "gpiod" && gpio_backend != "sim")
+    return fail("gpio.backend must be \"gpiod\" or \"sim\", not \"" + gpio_backend + "\"");
   if (camera_backend != "v4l2" && camera_backend != "libcamera" && camera_backend != "sim") {
     return fail("camera.backend must be \"v4l2\", \"libcamera\" or \"sim\", not \"" + camera_backend + "\"");
   }
   if (turntable_backend != "grbl") return fail("turntable.backend must be \"grbl\", not \"" + turntable_backend + "\"");
   if (serial_backend != "termios" && serial_backend != "libserialport" && serial_backend != "emulator") {
-    return fail("turntable.serial must be \"termios\", \"libserialport\" or \"emulator\", not \"" + serial_backend + "\"");
+    return fail("turntable.serial must be \"termios\", \"libserialport\" or \"emulator\", not \"" + serial_backend +
+                "\"");
   }
   const bool sim_gpio = gpio_backend == "sim";
   if (sim_gpio != (camera_backend == "sim") || sim_gpio != (serial_backend == "emulator")) {
-    return fail("gpio.backend = \"sim\", camera.backend = \"sim\" and turntable.serial = \"emulator\" go together "
-                "(the virtual camera obeys the virtual GPIO lines and renders at the emulated table's angle)");
+    return fail(
+        "gpio.backend = \"sim\", camera.backend = \"sim\" and turntable.serial = \"emulator\" go together "
+        "(the virtual camera obeys the virtual GPIO lines and renders at the emulated table's angle)");
   }
 
   // Every line has one function.
@@ -152,11 +155,13 @@ slproto::Status BoardConfig::check() const {
     if (!camera_trigger_line) return fail("camera.trigger = \"gpio\" needs camera.trigger_line");
     if (auto problem = claim(*camera_trigger_line, "camera.trigger_line"); !problem.empty()) return fail(problem);
   } else if (camera_trigger_line) {
-    return fail("camera.trigger_line is set but camera.trigger = \"projector\" (the projectors' TRIG_OUT_1 drive the "
-                "camera); remove one of them");
+    return fail(
+        "camera.trigger_line is set but camera.trigger = \"projector\" (the projectors' TRIG_OUT_1 drive the "
+        "camera); remove one of them");
   }
 
-  if (camera_format.width <= 0 || camera_format.height <= 0) return fail("camera.width and camera.height must be positive");
+  if (camera_format.width <= 0 || camera_format.height <= 0)
+    return fail("camera.width and camera.height must be positive");
   if (!(pattern_exposure_us > 0)) return fail("timing.pattern_exposure_us must be positive");
   if (pattern_exposure_us < 235) return fail("timing.pattern_exposure_us below the DLP4500's 235 us minimum");
   if (!(readout_us >= 0)) return fail("camera.readout_us must not be negative");
@@ -202,8 +207,8 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.only_keys("projector.right", {"trig_in_1", "trig_in_2", "trig_out_1"});
   r.only_keys("camera", {"backend", "device", "width", "height", "pixel_format", "gain", "trigger", "trigger_line",
                          "readout_us"});
-  r.only_keys("timing", {"pattern_exposure_us", "pattern_period_us", "settle_ms", "ack_timeout_ms",
-                         "frame_timeout_ms", "move_timeout_s"});
+  r.only_keys("timing", {"pattern_exposure_us", "pattern_period_us", "settle_ms", "ack_timeout_ms", "frame_timeout_ms",
+                         "move_timeout_s"});
   r.only_keys("turntable", {"backend", "serial", "port", "baud", "feed_deg_per_min", "angle_tolerance_deg"});
   r.only_keys("realtime", {"enabled", "priority", "cpu"});
   r.only_keys("sim", {"scene", "rig_size", "projector_latency_us", "camera_latency_us"});
@@ -231,15 +236,20 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.required("camera.pixel_format", pixel_format);
   if (!r.failed()) {
     auto format = parse_pixel_format(pixel_format);
-    if (!format) r.fail("field 'camera.pixel_format': " + format.error().message);
-    else b.camera_format.pixel_format = *format;
+    if (!format)
+      r.fail("field 'camera.pixel_format': " + format.error().message);
+    else
+      b.camera_format.pixel_format = *format;
   }
   r.optional("camera.gain", b.gain);
   r.required("camera.trigger", trigger);
   if (!r.failed()) {
-    if (trigger == "projector") b.trigger_source = CameraTriggerSource::projector;
-    else if (trigger == "gpio") b.trigger_source = CameraTriggerSource::gpio;
-    else r.fail("field 'camera.trigger' must be \"projector\" or \"gpio\", not \"" + trigger + "\"");
+    if (trigger == "projector")
+      b.trigger_source = CameraTriggerSource::projector;
+    else if (trigger == "gpio")
+      b.trigger_source = CameraTriggerSource::gpio;
+    else
+      r.fail("field 'camera.trigger' must be \"projector\" or \"gpio\", not \"" + trigger + "\"");
   }
   if (r.node("camera.trigger_line") != nullptr) {
     unsigned line = 0;

@@ -4,9 +4,12 @@ namespace slscand::hal {
 
 const char* pixel_format_name(PixelFormat format) noexcept {
   switch (format) {
-    case PixelFormat::mono8: return "mono8";
-    case PixelFormat::mono10: return "mono10";
-    case PixelFormat::mono12: return "mono12";
+    case PixelFormat::mono8:
+      return "mono8";
+    case PixelFormat::mono10:
+      return "mono10";
+    case PixelFormat::mono12:
+      return "mono12";
   }
   return "unknown";
 }

@@ -52,7 +52,8 @@ Result<TurntableStatus> parse_grbl_status(const std::string& line) {
   }
   auto pos = body.find("MPos:");
   if (pos == std::string::npos) pos = body.find("WPos:");
-  if (pos == std::string::npos) return make_error(Errc::malformed, "GRBL status report without a position: '" + line + "'");
+  if (pos == std::string::npos)
+    return make_error(Errc::malformed, "GRBL status report without a position: '" + line + "'");
   const char* start = body.c_str() + pos + 5;
   char* end = nullptr;
   status.angle_deg = std::strtod(start, &end);
@@ -127,7 +128,8 @@ Result<TurntableStatus> GrblTurntable::poll_status(Nanos deadline_ns) {
     auto reply = read_line(*port_, carry_, deadline_ns);
     if (!reply) {
       if (reply.error().code == Errc::malformed) continue;
-      if (reply.error().code == Errc::timeout) return make_error(Errc::timeout, "turntable did not answer a status query");
+      if (reply.error().code == Errc::timeout)
+        return make_error(Errc::timeout, "turntable did not answer a status query");
       return std::move(reply).error();
     }
     const std::string text = printable(*reply);
@@ -138,9 +140,7 @@ Result<TurntableStatus> GrblTurntable::poll_status(Nanos deadline_ns) {
   }
 }
 
-Result<TurntableStatus> GrblTurntable::status() {
-  return poll_status(monotonic_now_ns() + options_.reply_timeout_ns);
-}
+Result<TurntableStatus> GrblTurntable::status() { return poll_status(monotonic_now_ns() + options_.reply_timeout_ns); }
 
 Status GrblTurntable::home(Nanos timeout_ns) {
   // GRBL answers $H only once the homing cycle is over.
@@ -196,7 +196,8 @@ Result<double> GrblTurntable::rotate_to(double angle_deg, Nanos timeout_ns) {
       } else if (seen - last_progress > options_.stall_timeout_ns) {
         (void)stop();
         return make_error(Errc::hardware, "turntable stalled at " + format_angle(status->angle_deg) +
-                                              " deg while moving to " + format_angle(angle_deg) + " deg (no progress for " +
+                                              " deg while moving to " + format_angle(angle_deg) +
+                                              " deg (no progress for " +
                                               std::to_string(options_.stall_timeout_ns / kMilli) + " ms)");
       }
     }

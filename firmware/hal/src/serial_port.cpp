@@ -32,8 +32,8 @@ Result<std::string> read_line(SerialPort& port, std::string& carry, Nanos deadli
     if (carry.size() > max_line) {
       // A device spewing bytes without newlines: keep the tail so a later line still parses.
       carry.erase(0, carry.size() - max_line / 2);
-      return make_error(Errc::malformed, "serial port " + port.name() + ": line longer than " +
-                                             std::to_string(max_line) + " bytes");
+      return make_error(Errc::malformed,
+                        "serial port " + port.name() + ": line longer than " + std::to_string(max_line) + " bytes");
     }
     const Nanos left = deadline_ns - monotonic_now_ns();
     if (left <= 0) return make_error(Errc::timeout, "serial port " + port.name() + ": no reply line in time");

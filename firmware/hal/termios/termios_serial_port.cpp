@@ -88,15 +88,24 @@ class TermiosSerialPort final : public SerialPort {
 
 Result<unsigned> termios_speed(int baud) {
   switch (baud) {
-    case 9600: return unsigned{B9600};
-    case 19200: return unsigned{B19200};
-    case 38400: return unsigned{B38400};
-    case 57600: return unsigned{B57600};
-    case 115200: return unsigned{B115200};
-    case 230400: return unsigned{B230400};
-    case 460800: return unsigned{B460800};
-    case 921600: return unsigned{B921600};
-    default: break;
+    case 9600:
+      return unsigned{B9600};
+    case 19200:
+      return unsigned{B19200};
+    case 38400:
+      return unsigned{B38400};
+    case 57600:
+      return unsigned{B57600};
+    case 115200:
+      return unsigned{B115200};
+    case 230400:
+      return unsigned{B230400};
+    case 460800:
+      return unsigned{B460800};
+    case 921600:
+      return unsigned{B921600};
+    default:
+      break;
   }
   return make_error(Errc::invalid_argument,
                     "unsupported baud rate " + std::to_string(baud) +

@@ -55,23 +55,28 @@ int xioctl(int fd, unsigned long request, void* arg) {
 
 std::uint32_t v4l2_fourcc_for(PixelFormat format) noexcept {
   switch (format) {
-    case PixelFormat::mono8: return V4L2_PIX_FMT_GREY;
-    case PixelFormat::mono10: return V4L2_PIX_FMT_Y10;
-    case PixelFormat::mono12: return V4L2_PIX_FMT_Y12;
+    case PixelFormat::mono8:
+      return V4L2_PIX_FMT_GREY;
+    case PixelFormat::mono10:
+      return V4L2_PIX_FMT_Y10;
+    case PixelFormat::mono12:
+      return V4L2_PIX_FMT_Y12;
   }
   return 0;
 }
 
 Result<CameraFormat> v4l2_accept_format(const CameraFormat& wanted, const V4l2NegotiatedFormat& got) {
   const std::uint32_t fourcc = v4l2_fourcc_for(wanted.pixel_format);
-  if (got.width != static_cast<std::uint32_t>(wanted.width) || got.height != static_cast<std::uint32_t>(wanted.height) ||
-      got.fourcc != fourcc) {
+  if (got.width != static_cast<std::uint32_t>(wanted.width) ||
+      got.height != static_cast<std::uint32_t>(wanted.height) || got.fourcc != fourcc) {
     return make_error(Errc::unsupported, "the camera offers " + std::to_string(got.width) + "x" +
-                                             std::to_string(got.height) + " " + fourcc_text(got.fourcc) + " when asked for " +
-                                             std::to_string(wanted.width) + "x" + std::to_string(wanted.height) + " " +
-                                             fourcc_text(fourcc) + " (" + pixel_format_name(wanted.pixel_format) + ")");
+                                             std::to_string(got.height) + " " + fourcc_text(got.fourcc) +
+                                             " when asked for " + std::to_string(wanted.width) + "x" +
+                                             std::to_string(wanted.height) + " " + fourcc_text(fourcc) + " (" +
+                                             pixel_format_name(wanted.pixel_format) + ")");
   }
-  const std::size_t packed = static_cast<std::size_t>(wanted.width) * static_cast<std::size_t>(bytes_per_pixel(wanted.pixel_format));
+  const std::size_t packed =
+      static_cast<std::size_t>(wanted.width) * static_cast<std::size_t>(bytes_per_pixel(wanted.pixel_format));
   if (got.bytes_per_line < packed) {
     return make_error(Errc::malformed, "the camera reports " + std::to_string(got.bytes_per_line) +
                                            " bytes per line, fewer than a row's " + std::to_string(packed));
@@ -96,8 +101,9 @@ Result<V4l2ControlValues> v4l2_exposure_controls(const std::vector<V4l2Control>&
   }
   if (const V4l2Control* lines = find(available, V4L2_CID_EXPOSURE)) {
     if (!(line_time_us > 0)) {
-      return make_error(Errc::unsupported, "the camera sets exposure in sensor lines (V4L2_CID_EXPOSURE) and its line "
-                                           "time is unknown");
+      return make_error(Errc::unsupported,
+                        "the camera sets exposure in sensor lines (V4L2_CID_EXPOSURE) and its line "
+                        "time is unknown");
     }
     auto v = fit(*lines, exposure_us / line_time_us, "exposure (lines)");
     if (!v) return std::move(v).error();
@@ -123,7 +129,8 @@ Result<V4l2ControlValues> v4l2_gain_controls(const std::vector<V4l2Control>& ava
 const V4l2Control* v4l2_find_trigger_control(const std::vector<V4l2Control>& available) {
   for (const auto& c : available) {
     std::string lower = c.name;
-    std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
+    std::transform(lower.begin(), lower.end(), lower.begin(),
+                   [](unsigned char ch) { return static_cast<char>(std::tolower(ch)); });
     if (lower.find("trigger") != std::string::npos && lower.find("mode") != std::string::npos) return &c;
   }
   return nullptr;
@@ -150,7 +157,8 @@ namespace {
 
 class V4l2Camera final : public Camera {
  public:
-  V4l2Camera(int fd, std::string device, std::string card) : fd_(fd), device_(std::move(device)), card_(std::move(card)) {
+  V4l2Camera(int fd, std::string device, std::string card)
+      : fd_(fd), device_(std::move(device)), card_(std::move(card)) {
     enumerate_controls();
   }
   ~V4l2Camera() override {
@@ -170,8 +178,8 @@ class V4l2Camera final : public Camera {
     fmt.fmt.pix.pixelformat = v4l2_fourcc_for(wanted.pixel_format);
     fmt.fmt.pix.field = V4L2_FIELD_NONE;
     if (xioctl(fd_, VIDIOC_S_FMT, &fmt) != 0) return io_error("VIDIOC_S_FMT");
-    auto format = v4l2_accept_format(wanted, {fmt.fmt.pix.width, fmt.fmt.pix.height, fmt.fmt.pix.pixelformat,
-                                              fmt.fmt.pix.bytesperline});
+    auto format = v4l2_accept_format(
+        wanted, {fmt.fmt.pix.width, fmt.fmt.pix.height, fmt.fmt.pix.pixelformat, fmt.fmt.pix.bytesperline});
     if (!format) return make_error(format.error().code, device_ + ": " + format.error().message);
     format_ = *format;
     return format;

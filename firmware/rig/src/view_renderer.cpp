@@ -137,6 +137,8 @@ struct ViewRenderer::Impl {
   std::array<std::vector<float>, 2> position, gain;  // profile sample position; DN per unit light
   std::array<std::vector<std::vector<float>>, 2> profiles;
 
+  static std::unique_ptr<Impl> create(const Scene& scene, const detail::PreparedObjects& prepared,
+                                      double commanded_angle_deg, int view_index);
   void shade(const Scene& scene, const detail::World& world);
   void render_with(int side, const std::vector<float>* profile, std::uint64_t frame_key,
                    std::span<std::uint8_t> out) const;
@@ -318,12 +320,30 @@ void ViewRenderer::Impl::render_with(int side, const std::vector<float>* profile
   });
 }
 
-ViewRenderer::ViewRenderer(const Scene& scene, double commanded_angle_deg, int view_index)
-    : impl_(std::make_unique<Impl>()) {
+ViewRenderer::ViewRenderer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+
+ViewRenderer::ViewRenderer(const Scene& scene, double commanded_angle_deg, int view_index) {
   if (auto status = check_scene(scene); !status) throw std::invalid_argument(status.error().message);
+  if (!std::isfinite(commanded_angle_deg)) throw std::invalid_argument("view angle is not a finite number");
   auto prepared = detail::prepare_objects(scene);
   if (!prepared) throw std::invalid_argument(prepared.error().message);
-  Impl& m = *impl_;
+  impl_ = Impl::create(scene, *prepared, commanded_angle_deg, view_index);
+}
+
+slproto::Result<ViewRenderer> ViewRenderer::make(const Scene& scene, double commanded_angle_deg, int view_index) {
+  if (auto status = check_scene(scene); !status) return status.error();
+  if (!std::isfinite(commanded_angle_deg))
+    return slproto::make_error(slproto::Errc::invalid_argument, "view angle is not a finite number");
+  auto prepared = detail::prepare_objects(scene);  // mesh-file errors come back as a Result
+  if (!prepared) return std::move(prepared).error();
+  return ViewRenderer(Impl::create(scene, *prepared, commanded_angle_deg, view_index));
+}
+
+std::unique_ptr<ViewRenderer::Impl> ViewRenderer::Impl::create(const Scene& scene,
+                                                               const detail::PreparedObjects& prepared,
+                                                               double commanded_angle_deg, int view_index) {
+  auto impl = std::make_unique<Impl>();
+  Impl& m = *impl;
   m.width = scene.camera.width;
   m.height = scene.camera.height;
   m.view_index = view_index;
@@ -349,22 +369,14 @@ ViewRenderer::ViewRenderer(const Scene& scene, double commanded_angle_deg, int v
   m.truth.commanded_angle_deg = commanded_angle_deg;
   m.truth.cam_from_table =
       detail::actual_cam_from_table(scene, commanded_angle_deg, view_index, m.truth.actual_angle_deg);
-  const detail::World world = detail::build_world(scene, *prepared, m.truth.cam_from_table);
+  const detail::World world = detail::build_world(scene, prepared, m.truth.cam_from_table);
   m.shade(scene, world);
   for (std::size_t s = 0; s < 2; ++s) {
     m.profiles[s].reserve(m.plan.size());
     for (std::size_t i = 0; i < m.plan.size(); ++i)
       m.profiles[s].push_back(build_profile(m.plan, i, m.gamma[s], m.sigma[s]));
   }
-}
-
-slproto::Result<ViewRenderer> ViewRenderer::make(const Scene& scene, double commanded_angle_deg, int view_index) {
-  if (auto status = check_scene(scene); !status) return status.error();
-  if (!std::isfinite(commanded_angle_deg))
-    return slproto::make_error(slproto::Errc::invalid_argument, "view angle is not a finite number");
-  auto prepared = detail::prepare_objects(scene);  // surfaces mesh-file errors as a Result
-  if (!prepared) return std::move(prepared).error();
-  return ViewRenderer(scene, commanded_angle_deg, view_index);
+  return impl;
 }
 
 ViewRenderer::~ViewRenderer() = default;

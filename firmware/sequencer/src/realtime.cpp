@@ -41,7 +41,8 @@ RealtimeResult enter_realtime(int priority, int cpu) {
   } else {
     result.warnings += std::string("SCHED_FIFO refused (") + std::strerror(rv) +
                        "): the sequencer runs at normal priority and its timing jitter will be larger (needs "
-                       "CAP_SYS_NICE or an RLIMIT_RTPRIO >= " + std::to_string(priority) + "); ";
+                       "CAP_SYS_NICE or an RLIMIT_RTPRIO >= " +
+                       std::to_string(priority) + "); ";
   }
   if (cpu >= 0) {
     cpu_set_t set;

@@ -9,9 +9,12 @@ using slproto::make_error;
 
 slproto::pb::PixelFormat to_proto(hal::PixelFormat format) noexcept {
   switch (format) {
-    case hal::PixelFormat::mono8: return slproto::pb::PIXEL_FORMAT_MONO8;
-    case hal::PixelFormat::mono10: return slproto::pb::PIXEL_FORMAT_MONO10;
-    case hal::PixelFormat::mono12: return slproto::pb::PIXEL_FORMAT_MONO12;
+    case hal::PixelFormat::mono8:
+      return slproto::pb::PIXEL_FORMAT_MONO8;
+    case hal::PixelFormat::mono10:
+      return slproto::pb::PIXEL_FORMAT_MONO10;
+    case hal::PixelFormat::mono12:
+      return slproto::pb::PIXEL_FORMAT_MONO12;
   }
   return slproto::pb::PIXEL_FORMAT_UNSPECIFIED;
 }
@@ -19,7 +22,8 @@ slproto::pb::PixelFormat to_proto(hal::PixelFormat format) noexcept {
 slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request, const hal::BoardConfig& board,
                                          const hal::CameraFormat& camera_format) {
   auto refuse = [&](Errc code, const std::string& why) {
-    return make_error(code, "scan " + std::to_string(request.scan_id()) + " refused by board '" + board.name + "': " + why);
+    return make_error(code,
+                      "scan " + std::to_string(request.scan_id()) + " refused by board '" + board.name + "': " + why);
   };
   if (auto s = slproto::check_scan_request(request, 2); !s) return refuse(s.error().code, s.error().message);
   auto config = slproto::from_proto(request.plan());
@@ -40,8 +44,8 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
 
   // The DLP4500 shows one 8-bit pattern for at least 8333 us; 1-bit patterns go down to 235 us.
   if (request.exposure_us() < 235) {
-    return refuse(Errc::unsupported, "exposure_us " + std::to_string(request.exposure_us()) +
-                                         " is below the projector's 235 us minimum");
+    return refuse(Errc::unsupported,
+                  "exposure_us " + std::to_string(request.exposure_us()) + " is below the projector's 235 us minimum");
   }
   if (plan.patterns.size() > 32) {
     return refuse(Errc::unsupported, "the plan has " + std::to_string(plan.patterns.size()) +
@@ -56,13 +60,15 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
                                          std::to_string(static_cast<long long>(needed_us)) + " us on this board)");
   }
   if (board.trigger_source == hal::CameraTriggerSource::projector && request.trigger_delay_us() != 0) {
-    return refuse(Errc::unsupported, "trigger_delay_us must be 0: on this board the projectors' TRIG_OUT_1 trigger the "
-                                     "camera directly");
+    return refuse(Errc::unsupported,
+                  "trigger_delay_us must be 0: on this board the projectors' TRIG_OUT_1 trigger the "
+                  "camera directly");
   }
   if (request.pixel_format() != slproto::pb::PIXEL_FORMAT_UNSPECIFIED &&
       request.pixel_format() != to_proto(camera_format.pixel_format)) {
     return refuse(Errc::unsupported, std::string("pixel_format ") + slproto::pixel_format_name(request.pixel_format()) +
-                                         ": the camera is set up for " + hal::pixel_format_name(camera_format.pixel_format));
+                                         ": the camera is set up for " +
+                                         hal::pixel_format_name(camera_format.pixel_format));
   }
   plan.pixel_format = camera_format.pixel_format;
   return plan;

@@ -1,10 +1,10 @@
 #include "slscand/sequencer/sequencer.hpp"
 
-#include "slproto/calibration.hpp"
-
 #include <cmath>
 #include <deque>
 #include <optional>
+
+#include "slproto/calibration.hpp"
 
 namespace slscand {
 
@@ -166,10 +166,11 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
                                                             "external trigger mode?")};
             }
             if (last_camera_sequence && frame->sequence != *last_camera_sequence + 1) {
-              return Failure{pb::SCAN_STATE_FAILED,
-                             make_error(Errc::hardware, "camera dropped " +
-                                                            std::to_string(frame->sequence - *last_camera_sequence - 1) +
-                                                            " frame(s) before frame " + std::to_string(frame->sequence))};
+              return Failure{
+                  pb::SCAN_STATE_FAILED,
+                  make_error(Errc::hardware, "camera dropped " +
+                                                 std::to_string(frame->sequence - *last_camera_sequence - 1) +
+                                                 " frame(s) before frame " + std::to_string(frame->sequence))};
             }
             last_camera_sequence = frame->sequence;
             item.timing.exposure_start_ns = frame->exposure_start_ns;
@@ -200,6 +201,8 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
         // The first trigger leaves a millisecond for the projector to arm its sequence.
         Nanos t0 = monotonic_now_ns() + kMilli;
         bool paused = false;
+        Nanos previous_trigger = 0;
+        Nanos previous_shown = 0;
         for (std::size_t i = 0; i < plan.patterns.size(); ++i) {
           if (auto f = fail_if_aborted()) return f;
           Nanos deadline = t0 + static_cast<Nanos>(i) * plan.period_ns;
@@ -209,6 +212,17 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
             paused = true;  // held back by a full queue (or a slow camera): shift what follows
             t0 += late;
             deadline += late;
+          }
+          // After a late trigger (a late wake-up), never catch up by triggering sooner than one
+          // period after it, nor before the projector's last exposure (known from its TRIG_OUT_1
+          // edge) has ended: the projector would be advanced mid-exposure. The slip shows in
+          // the period statistics.
+          const Nanos earliest =
+              std::max(previous_trigger + plan.period_ns, previous_shown + plan.exposure_ns + 100 * kMicro);
+          if (i > 0 && deadline < earliest) {
+            const Nanos slip = earliest - deadline;
+            t0 += slip;
+            deadline += slip;
           }
           sleep_until_ns(deadline);
           SequencedFrame item;
@@ -231,6 +245,7 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
           auto trigger = projector.advance();
           if (!trigger) return Failure{pb::SCAN_STATE_FAILED, trigger.error()};
           timing.trigger_ns = *trigger;
+          previous_trigger = *trigger;
           log(pb::TIMING_EVENT_PROJECTOR_TRIGGER, *trigger, projector_id);
           if (devices_.camera_trigger) {
             sleep_until_ns(*trigger + plan.trigger_delay_ns);
@@ -243,6 +258,7 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
           if (devices_.camera_trigger) (void)devices_.camera_trigger->set_value(*board_.camera_trigger_line, false);
           if (!shown) return Failure{pb::SCAN_STATE_FAILED, shown.error()};
           timing.shown_ns = shown->timestamp_ns;
+          previous_shown = shown->timestamp_ns;
           log(pb::TIMING_EVENT_PATTERN_SHOWN, shown->timestamp_ns, projector_id);
           item.events = std::move(pending);
           pending.clear();

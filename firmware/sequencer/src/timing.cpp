@@ -43,8 +43,8 @@ TimingReport make_timing_report(const std::vector<FrameTiming>& frames, double n
     if (f.exposure_end_ns != 0) delivery.push_back(static_cast<double>(f.dequeued_ns - f.exposure_end_ns) * 1e-3);
     if (i > 0) {
       const FrameTiming& p = frames[i - 1];
-      const bool same_pass = p.view_index == f.view_index && p.projector_id == f.projector_id &&
-                             p.pattern_index + 1 == f.pattern_index;
+      const bool same_pass =
+          p.view_index == f.view_index && p.projector_id == f.projector_id && p.pattern_index + 1 == f.pattern_index;
       if (same_pass && !f.paused_before) {
         const double us = static_cast<double>(f.trigger_ns - p.trigger_ns) * 1e-3;
         period.push_back(us);

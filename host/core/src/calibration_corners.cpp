@@ -36,17 +36,30 @@ CornerDetection detect_checkerboard(const cv::Mat& image, const CheckerboardTarg
   const cv::Size pattern(target.inner_x(), target.inner_y());
   std::vector<cv::Point2f> corners;
   bool found = false;
+  const int classic_flags = cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE;
+  const int sector_flags = cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE | cv::CALIB_CB_ACCURACY;
   if (options.sector_based) {
-    found = cv::findChessboardCornersSB(grey, pattern, corners,
-                                        cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE | cv::CALIB_CB_ACCURACY);
+    found = cv::findChessboardCornersSB(grey, pattern, corners, sector_flags);
   } else {
-    found =
-        cv::findChessboardCorners(grey, pattern, corners, cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE);
-    if (found) {
-      const int w = options.subpixel_half_window;
-      cv::cornerSubPix(grey, corners, cv::Size(w, w), cv::Size(-1, -1),
-                       cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+    // The classic detector, with the sector-based one as the fallback where it fails (it finds
+    // boards under stronger perspective and blur).
+    found = cv::findChessboardCorners(grey, pattern, corners, classic_flags);
+    if (!found) found = cv::findChessboardCornersSB(grey, pattern, corners, sector_flags);
+  }
+  if (found && static_cast<int>(corners.size()) == target.corner_count()) {
+    // cornerSubPix on every result: measured on a synthetic board with 1 DN of noise, the
+    // sector-based corners alone scatter by 0.25 px, refined ones by 0.07 px. Its window must
+    // stay inside the squares next to the corner.
+    double nearest = std::numeric_limits<double>::infinity();
+    for (int id = 0; id < target.corner_count(); ++id) {
+      const auto i = static_cast<std::size_t>(id);
+      if ((id + 1) % target.inner_x() != 0) nearest = std::min(nearest, cv::norm(corners[i + 1] - corners[i]));
+      if (id + target.inner_x() < target.corner_count())
+        nearest = std::min(nearest, cv::norm(corners[i + static_cast<std::size_t>(target.inner_x())] - corners[i]));
     }
+    const int w = std::clamp(static_cast<int>(0.35 * nearest), 2, options.subpixel_half_window);
+    cv::cornerSubPix(grey, corners, cv::Size(w, w), cv::Size(-1, -1),
+                     cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
   }
   if (!found || static_cast<int>(corners.size()) != target.corner_count()) {
     out.reason = "no " + std::to_string(target.inner_x()) + " x " + std::to_string(target.inner_y()) +

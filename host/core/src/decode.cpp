@@ -30,6 +30,10 @@ void DecodeOptions::check() const {
   if (saturation_dn < 0 || saturation_dn > (1 << bit_depth) - 1)
     fail("saturation_dn " + std::to_string(saturation_dn) + " outside [0 (auto), " +
          std::to_string((1 << bit_depth) - 1) + "]");
+  if (smoothing_radius < 0 || smoothing_radius > 2)
+    fail("smoothing_radius " + std::to_string(smoothing_radius) + " outside [0, 2]");
+  if (!(smoothing_max_deviation_px > 0) || !std::isfinite(smoothing_max_deviation_px))
+    fail("smoothing_max_deviation_px must be positive and finite");
   if (rows_per_task < 1 || rows_per_task > 4096)
     fail("rows_per_task " + std::to_string(rows_per_task) + " outside [1, 4096]");
 }
@@ -118,6 +122,37 @@ struct RowScratch {
     max_value.resize(w);
   }
 };
+
+// Least-squares plane c = a + gx du + gy dv over the valid pixels of the (2 r + 1)^2 window
+// around (x, y), in differences from the centre value; `value` = a (the plane at the centre).
+// False when the valid pixels don't pin a plane down (collinear or too few).
+bool plane_fit_at_centre(const float* raw, std::size_t stride, int x, int y, int r, float& value) {
+  const float c0 = raw[static_cast<std::size_t>(y) * stride + static_cast<std::size_t>(x)];
+  double n = 0, su = 0, sv = 0, suu = 0, svv = 0, suv = 0, sc = 0, scu = 0, scv = 0;
+  for (int dv = -r; dv <= r; ++dv) {
+    const float* row = raw + static_cast<std::size_t>(y + dv) * stride;
+    for (int du = -r; du <= r; ++du) {
+      const float v = row[x + du];
+      if (!(v == v)) continue;
+      const double c = v - c0;
+      n += 1;
+      su += du;
+      sv += dv;
+      suu += du * du;
+      svv += dv * dv;
+      suv += du * dv;
+      sc += c;
+      scu += c * du;
+      scv += c * dv;
+    }
+  }
+  // Solve [n su sv; su suu suv; sv suv svv] [a gx gy]^T = [sc scu scv]^T by Cramer's rule.
+  const double det = n * (suu * svv - suv * suv) - su * (su * svv - suv * sv) + sv * (su * suv - suu * sv);
+  if (!(std::abs(det) > 1e-6 * n * n * n)) return false;
+  const double det_a = sc * (suu * svv - suv * suv) - su * (scu * svv - suv * scv) + sv * (scu * suv - suu * scv);
+  value = static_cast<float>(det_a / det);
+  return std::isfinite(value);
+}
 
 }  // namespace
 
@@ -299,7 +334,105 @@ void ProjectorViewDecoder::finish(DecodedView& out) {
     out.counts.low_modulation += c.low_modulation;
     out.counts.out_of_range += c.out_of_range;
   });
+  if (options_.smoothing_radius > 0) smooth(out);
   reset();
+}
+
+void ProjectorViewDecoder::smooth(DecodedView& out) {
+  raw_coordinate_.swap(out.coordinate);
+  out.coordinate.resize(raw_coordinate_.size());
+  const int w = width_, h = height_;
+  const int radius = options_.smoothing_radius;
+  const float max_deviation = options_.smoothing_max_deviation_px;
+  const float* raw = raw_coordinate_.data();
+  // ~2 sigma of (5 x 5 mean - 3 x 3 mean): the phase noise of a pixel scales as 1 / B, and
+  // is ~0.05 px at B = 30 DN on the rig (8-bit sensor, 1.5 DN read noise plus shot noise).
+  constexpr float kCurvatureToleranceDnPx = 0.8f;
+  const float* quality = out.quality.data();
+  float* smoothed = out.coordinate.data();
+  struct Sums {
+    std::vector<float> wide, narrow, wide_count, narrow_count;  // counts as float: one vector type
+  };
+  static tbb::enumerable_thread_specific<Sums> sums_by_thread;
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, options_.rows_per_task), [&](const tbb::blocked_range<int>& rows) {
+    Sums& sums = sums_by_thread.local();
+    const auto uw = static_cast<std::size_t>(w);
+    sums.wide.resize(uw);
+    sums.narrow.resize(uw);
+    sums.wide_count.resize(uw);
+    sums.narrow_count.resize(uw);
+    float* __restrict wide = sums.wide.data();
+    float* __restrict narrow = sums.narrow.data();
+    float* __restrict wide_count = sums.wide_count.data();
+    float* __restrict narrow_count = sums.narrow_count.data();
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      const float* centre = raw + static_cast<std::size_t>(y) * uw;
+      float* result = smoothed + static_cast<std::size_t>(y) * uw;
+      std::copy(centre, centre + w, result);
+      if (y < 1 || y >= h - 1 || w < 3) continue;
+      const int r = (y >= radius && y < h - radius) ? radius : 1;
+      std::fill(wide, wide + w, 0.0f);
+      std::fill(narrow, narrow + w, 0.0f);
+      std::fill(wide_count, wide_count + w, 0.0f);
+      std::fill(narrow_count, narrow_count + w, 0.0f);
+      // Sums of (neighbour - centre): small numbers, so float keeps ~1e-6 px. NaN (masked)
+      // neighbours fail the self-comparison and are left out.
+      for (int dv = -r; dv <= r; ++dv) {
+        const float* row = raw + static_cast<std::size_t>(y + dv) * uw;
+        for (int du = -r; du <= r; ++du) {
+          const bool inner = du >= -1 && du <= 1 && dv >= -1 && dv <= 1;
+          const float* shifted = row + du;
+          if (inner) {
+            for (int x = r; x < w - r; ++x) {
+              const float value = shifted[x];
+              const bool ok = value == value;
+              const float delta = ok ? value - centre[x] : 0.0f;
+              const float one = ok ? 1.0f : 0.0f;
+              wide[x] += delta;
+              wide_count[x] += one;
+              narrow[x] += delta;
+              narrow_count[x] += one;
+            }
+          } else {
+            for (int x = r; x < w - r; ++x) {
+              const float value = shifted[x];
+              const bool ok = value == value;
+              wide[x] += ok ? value - centre[x] : 0.0f;
+              wide_count[x] += ok ? 1.0f : 0.0f;
+            }
+          }
+        }
+      }
+      const auto full_wide = static_cast<float>((2 * r + 1) * (2 * r + 1));
+      for (int x = r; x < w - r; ++x) {
+        if (!(centre[x] == centre[x])) continue;
+        const float mean_wide = wide[x] / full_wide;
+        const float mean_narrow = narrow[x] / 9.0f;
+        if (wide_count[x] == full_wide) {
+          if (std::fabs(mean_wide) <= max_deviation) {
+            // A window mean is biased by the coordinate's curvature, in proportion to the
+            // window's second moment (4 for 5 x 5, 4/3 for 3 x 3). Where the two means differ
+            // by more than noise (the limb of a sphere, a fillet), extrapolate the bias away
+            // (Richardson: 1.5 m3 - 0.5 m5); elsewhere the 5 x 5 mean has the least noise.
+            const float tolerance =
+                kCurvatureToleranceDnPx /
+                std::max(quality[static_cast<std::size_t>(y) * uw + static_cast<std::size_t>(x)], 1.0f);
+            const bool curved = r == 2 && std::fabs(mean_wide - mean_narrow) > tolerance;
+            result[x] = centre[x] + (curved ? 1.5f * mean_narrow - 0.5f * mean_wide : mean_wide);
+          } else if (narrow_count[x] == 9.0f && std::fabs(mean_narrow) <= max_deviation) {
+            result[x] = centre[x] + mean_narrow;
+          }
+        } else if (wide_count[x] >= 6.0f) {
+          // Part of the window is masked (a shadow border, an edge): a one-sided mean would
+          // be biased by the coordinate's slope, so fit a plane to the valid neighbours and
+          // take its value at the centre. Only edge pixels get here.
+          float value;
+          if (plane_fit_at_centre(raw, uw, x, y, r, value) && std::fabs(value) <= max_deviation)
+            result[x] = centre[x] + value;
+        }
+      }
+    }
+  });
 }
 
 }  // namespace slscan::core

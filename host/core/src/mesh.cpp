@@ -474,17 +474,30 @@ MeshResult poisson_mesh(const PointCloud& cloud, const PoissonOptions& options) 
     mesh.vertices = std::move(vertices);
     mesh.triangles = std::move(kept);
   }
-  // Vertex normals: area-weighted triangle normals.
+  // Vertex normals: minus the gradient of chi (smooth, unlike the normals of marching
+  // tetrahedra's thin triangles); the area-weighted triangle normal where the gradient vanishes.
   mesh.normals.assign(mesh.vertices.size(), Eigen::Vector3f::Zero());
   for (const auto& t : mesh.triangles) {
     const Eigen::Vector3f n =
         (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
     for (auto v : t) mesh.normals[v] += n;
   }
-  for (auto& n : mesh.normals) {
-    const float len = n.norm();
-    n = len > 0 ? Eigen::Vector3f(n / len) : Eigen::Vector3f::UnitZ();
-  }
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mesh.vertices.size(), 1024),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i < r.end(); ++i) {
+                        const Eigen::Vector3d p = mesh.vertices[i].cast<double>();
+                        Eigen::Vector3d grad;
+                        for (int d = 0; d < 3; ++d) {
+                          Eigen::Vector3d e = Eigen::Vector3d::Zero();
+                          e[d] = 0.5 * g.h;
+                          grad[d] = g.sample(solution.chi, p + e) - g.sample(solution.chi, p - e);
+                        }
+                        Eigen::Vector3f n = mesh.normals[i];
+                        if (grad.norm() > 0 && (-grad).cast<float>().dot(n) > 0) n = (-grad).cast<float>();
+                        const float len = n.norm();
+                        mesh.normals[i] = len > 0 ? Eigen::Vector3f(n / len) : Eigen::Vector3f::UnitZ();
+                      }
+                    });
   result.mesh = std::move(mesh);
   return result;
 }

@@ -92,13 +92,15 @@ std::vector<Eigen::Vector3f> pca_normals(const PointCloud& cloud, const PcaNorma
   std::vector<Eigen::Vector3f> normals(cloud.size(), Eigen::Vector3f(kNaN, kNaN, kNaN));
   if (cloud.size() < 3) return normals;
   const detail::KdTree tree(cloud.points);
+  const auto& order = tree.spatial_order();
   const auto k = static_cast<std::size_t>(options.k);
   const Eigen::Vector3f axis = options.axis_direction.normalized();
   tbb::parallel_for(
       tbb::blocked_range<std::size_t>(0, cloud.size(), 1024), [&](const tbb::blocked_range<std::size_t>& range) {
         std::vector<std::uint32_t> indices(k);
         std::vector<float> d2(k);
-        for (std::size_t i = range.begin(); i < range.end(); ++i) {
+        for (std::size_t q = range.begin(); q < range.end(); ++q) {
+          const std::size_t i = order[q];
           const Eigen::Vector3f p = cloud.points[i];
           const std::size_t found = tree.knn(p, k, indices.data(), d2.data());
           if (found < 3) continue;

@@ -192,10 +192,22 @@ class JointIcp {
   const IcpOptions& options_;
 };
 
-ViewData make_view(const PointCloud& cloud, std::size_t max_samples, std::uint64_t seed) {
+// Spreads the low 21 bits of x to every third bit (for a 63-bit Morton code).
+std::uint64_t spread_bits(std::uint64_t x) {
+  x &= 0x1fffff;
+  x = (x | x << 32) & 0x1f00000000ffffULL;
+  x = (x | x << 16) & 0x1f0000ff0000ffULL;
+  x = (x | x << 8) & 0x100f00f00f00f00fULL;
+  x = (x | x << 4) & 0x10c30c30c30c30c3ULL;
+  x = (x | x << 2) & 0x1249249249249249ULL;
+  return x;
+}
+
+// `with_tree`: whether other views search this one (a pure source needs no tree).
+ViewData make_view(const PointCloud& cloud, std::size_t max_samples, std::uint64_t seed, bool with_tree = true) {
   ViewData v;
   v.cloud = &cloud;
-  v.tree = std::make_unique<detail::KdTree>(cloud.points);
+  if (with_tree) v.tree = std::make_unique<detail::KdTree>(cloud.points);
   for (std::size_t i = 0; i < cloud.size(); ++i)
     if (cloud.normals[i].allFinite()) v.samples.push_back(static_cast<std::uint32_t>(i));
   if (v.samples.size() > max_samples) {
@@ -206,7 +218,21 @@ ViewData make_view(const PointCloud& cloud, std::size_t max_samples, std::uint64
       std::swap(v.samples[i], v.samples[pick(rng)]);
     }
     v.samples.resize(max_samples);
-    std::sort(v.samples.begin(), v.samples.end());  // memory order: kinder to the caches
+  }
+  // Query in Morton (Z-curve) order of 0.25 mm cells: consecutive queries then walk the same
+  // k-d tree leaves, whatever order the cloud came in.
+  if (!v.samples.empty()) {
+    Eigen::Vector3f lo = cloud.points[v.samples[0]];
+    for (auto i : v.samples) lo = lo.cwiseMin(cloud.points[i]);
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(v.samples.size());
+    for (std::size_t k = 0; k < v.samples.size(); ++k) {
+      const Eigen::Vector3f c = (cloud.points[v.samples[k]] - lo) * 4.0f;
+      keyed[k] = {spread_bits(static_cast<std::uint64_t>(c.x())) | spread_bits(static_cast<std::uint64_t>(c.y())) << 1 |
+                      spread_bits(static_cast<std::uint64_t>(c.z())) << 2,
+                  v.samples[k]};
+    }
+    std::sort(keyed.begin(), keyed.end());
+    for (std::size_t k = 0; k < keyed.size(); ++k) v.samples[k] = keyed[k].second;
   }
   return v;
 }
@@ -249,7 +275,7 @@ IcpResult icp_point_to_plane(const PointCloud& source, const PointCloud& target,
   check_view(target, "ICP target");
   std::vector<ViewData> views;
   views.push_back(make_view(target, 0, options.seed));
-  views.push_back(make_view(source, options.source_points_per_view, options.seed));
+  views.push_back(make_view(source, options.source_points_per_view, options.seed, false));
   std::vector<Eigen::Isometry3d> poses{Eigen::Isometry3d::Identity(), initial_target_from_source};
   JointIcp icp(views, poses, {true, false}, {{1, 0}}, options);
   IcpResult result;

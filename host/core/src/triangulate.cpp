@@ -23,8 +23,8 @@ CameraRayTable CameraRayTable::build(const slproto::PinholeModel& camera) {
     const float nan = std::numeric_limits<float>::quiet_NaN();
     for (int v = rows.begin(); v < rows.end(); ++v)
       for (int u = 0; u < camera.width; ++u) {
-        const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(camera.width) +
-                              static_cast<std::size_t>(u);
+        const std::size_t i =
+            static_cast<std::size_t>(v) * static_cast<std::size_t>(camera.width) + static_cast<std::size_t>(u);
         double x = 0, y = 0;
         const bool ok = camera.pixel_to_ray(u, v, x, y);
         table.x[i] = ok ? static_cast<float>(x) : nan;
@@ -116,9 +116,13 @@ ProjectorTriangulator::Outcome ProjectorTriangulator::solve(float ray_x, float r
   };
   if (distorted_) {
     double g = 0.0, slope = 1.0;
+    // Stops once the step is below ~1e-7 projector px: two or three evaluations for a
+    // DLP lens, since the start (the distorted target) is already within the distortion.
     for (int iter = 0; iter < options_.newton_iterations; ++iter) {
       evaluate(s, g, slope);
-      s -= g / slope;
+      const double step = g / slope;
+      s -= step;
+      if (std::abs(step) < 1e-10) break;
     }
     evaluate(s, g, slope);
     residual = std::abs(g) * f_coded;
@@ -159,8 +163,8 @@ TriangulatedView ProjectorTriangulator::triangulate(const DecodedView& decoded) 
 TriangulateCounts ProjectorTriangulator::triangulate(const DecodedView& decoded, OrganizedCloud& out) const {
   if (decoded.width != rays_->width || decoded.height != rays_->height)
     throw std::invalid_argument("triangulator: decoded view is " + std::to_string(decoded.width) + " x " +
-                                std::to_string(decoded.height) + " but the camera is " +
-                                std::to_string(rays_->width) + " x " + std::to_string(rays_->height));
+                                std::to_string(decoded.height) + " but the camera is " + std::to_string(rays_->width) +
+                                " x " + std::to_string(rays_->height));
   if (decoded.axis != axis_)
     throw std::invalid_argument(std::string("triangulator: decoded view codes ") +
                                 slproto::coding_axis_name(decoded.axis) + " but the triangulator expects " +

@@ -21,8 +21,8 @@ ViewPipeline::ViewPipeline(const slproto::RigCalibration& calibration, const Vie
   plan_ = slproto::PatternPlan(calibration.pattern_plan);
   rays_ = std::make_shared<const CameraRayTable>(CameraRayTable::build(calibration.camera));
   for (std::size_t side = 0; side < 2; ++side) {
-    decoders_[side] = std::make_unique<ProjectorViewDecoder>(plan_, calibration.camera.width,
-                                                             calibration.camera.height, options_.decode);
+    decoders_[side] = std::make_unique<ProjectorViewDecoder>(plan_, calibration.camera.width, calibration.camera.height,
+                                                             options_.decode);
     triangulators_[side] = std::make_unique<ProjectorTriangulator>(rays_, calibration.projectors[side],
                                                                    calibration.pattern_plan.axis, options_.triangulate);
   }

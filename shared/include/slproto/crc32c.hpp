@@ -1,5 +1,6 @@
 // CRC32C (Castagnoli, reflected polynomial 0x82F63B78), as used by iSCSI, ext4 and SSE4.2's
-// crc32 instruction. The SSE4.2 path is chosen at run time; elsewhere a slicing-by-8 table.
+// crc32 instruction. The SSE4.2 (x86-64) or ARMv8 CRC32 (aarch64) path is chosen at run time;
+// elsewhere, or without those instructions, a slicing-by-8 table.
 #pragma once
 
 #include <cstddef>

@@ -10,7 +10,9 @@
 // unacknowledged that long.
 //
 // Threads: one thread may send while another receives; sends are serialised internally;
-// receive() must not be called from two threads at once.
+// receive() must not be called from two threads at once. close() may be called from any
+// thread (it wakes a receive() blocked in another, which then reports Errc::disconnected);
+// destroy the Connection only once no other thread uses it.
 #pragma once
 
 #include <chrono>

@@ -158,6 +158,7 @@ class ViewRenderer {
 
  private:
   struct Impl;
+  explicit ViewRenderer(std::unique_ptr<Impl> impl);
   std::unique_ptr<Impl> impl_;
 };
 

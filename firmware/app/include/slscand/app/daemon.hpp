@@ -18,12 +18,12 @@
 namespace slscand {
 
 struct DaemonOptions {
-  std::string bind_address;          // "" = the board's
-  int port = -1;                     // -1 = the board's, 0 = any free port
-  std::string timing_log_dir;        // "" = do not write timing logs on the board
-  std::string auth_token;            // "" = none required
-  std::size_t queue_capacity = 8;    // frames between the sequencer and the streamer
-  bool realtime = true;              // SCHED_FIFO + mlockall if the board allows it
+  std::string bind_address;        // "" = the board's
+  int port = -1;                   // -1 = the board's, 0 = any free port
+  std::string timing_log_dir;      // "" = do not write timing logs on the board
+  std::string auth_token;          // "" = none required
+  std::size_t queue_capacity = 8;  // frames between the sequencer and the streamer
+  bool realtime = true;            // SCHED_FIFO + mlockall if the board allows it
   slproto::ConnectionOptions connection;
 };
 

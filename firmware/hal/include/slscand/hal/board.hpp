@@ -63,13 +63,13 @@ struct BoardConfig {
   // [realtime]
   bool realtime = true;  // SCHED_FIFO + mlockall when permitted
   int realtime_priority = 80;
-  int cpu = -1;          // pin the sequencer thread; -1 = no pinning
+  int cpu = -1;  // pin the sequencer thread; -1 = no pinning
 
   // [sim] (sim backends only)
   std::string sim_scene = "sphere";
-  std::string sim_rig_size = "small";     // "small" (640 x 512) or "full"
-  double sim_projector_latency_us = 15;   // TRIG_IN_1 -> TRIG_OUT_1
-  double sim_camera_latency_us = 5;       // trigger edge -> exposure start
+  std::string sim_rig_size = "small";    // "small" (640 x 512) or "full"
+  double sim_projector_latency_us = 15;  // TRIG_IN_1 -> TRIG_OUT_1
+  double sim_camera_latency_us = 5;      // trigger edge -> exposure start
 
   bool is_sim() const { return gpio_backend == "sim"; }
   // Cross-field checks (loading runs them; a board built in code should too).

@@ -41,7 +41,7 @@ struct Frame {
   std::uint64_t sequence = 0;        // the driver's frame counter; gaps are dropped frames
   Nanos exposure_start_ns = 0;       // CLOCK_MONOTONIC; 0 when the backend cannot tell
   Nanos exposure_end_ns = 0;
-  Nanos dequeued_ns = 0;             // when the frame reached user space
+  Nanos dequeued_ns = 0;  // when the frame reached user space
 };
 
 class Camera {

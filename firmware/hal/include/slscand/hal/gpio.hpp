@@ -23,7 +23,7 @@ enum class EdgeDetection : std::uint8_t { none, rising, falling, both };
 struct LineSettings {
   unsigned offset = 0;
   LineDirection direction = LineDirection::output;
-  bool initial_value = false;                // outputs only
+  bool initial_value = false;                 // outputs only
   EdgeDetection edges = EdgeDetection::none;  // inputs only
   bool active_low = false;
   std::string name;  // what the line is for, used in error messages ("projector.left.trig_in_1")
@@ -41,8 +41,8 @@ struct LineRequestConfig {
 struct EdgeEvent {
   unsigned offset = 0;
   bool rising = true;
-  Nanos timestamp_ns = 0;     // CLOCK_MONOTONIC, from the kernel (or the sim bus)
-  std::uint64_t seqno = 0;    // per request, from 1; a gap means the kernel buffer overflowed
+  Nanos timestamp_ns = 0;   // CLOCK_MONOTONIC, from the kernel (or the sim bus)
+  std::uint64_t seqno = 0;  // per request, from 1; a gap means the kernel buffer overflowed
 };
 
 class LineRequest {

@@ -25,8 +25,7 @@ class DlpProjector {
   static constexpr Nanos kTriggerPulseNs = 20 * kMicro;  // DLPC350 needs >= 20 us
 
   // Requests the three lines on `chip`; `name` ("projector.left") goes into every error.
-  static Result<std::unique_ptr<DlpProjector>> open(GpioChip& chip, const DlpLines& lines,
-                                                    const std::string& name);
+  static Result<std::unique_ptr<DlpProjector>> open(GpioChip& chip, const DlpLines& lines, const std::string& name);
 
   const std::string& name() const { return name_; }
   const DlpLines& lines() const { return lines_; }

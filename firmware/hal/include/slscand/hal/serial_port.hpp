@@ -36,7 +36,7 @@ Result<unsigned> termios_speed(int baud);
 struct SerialPortInfo {
   std::string path;
   std::string description;
-  int usb_vendor_id = -1;   // -1 when not a USB device
+  int usb_vendor_id = -1;  // -1 when not a USB device
   int usb_product_id = -1;
   std::string usb_serial;
 };
@@ -53,7 +53,6 @@ bool parse_usb_id(std::string_view spec, int& vendor_id, int& product_id);
 
 // Reads one line (without the trailing \r\n) from `port`, keeping surplus bytes in `carry`.
 // Errc::timeout when no complete line arrives before the absolute `deadline_ns`.
-Result<std::string> read_line(SerialPort& port, std::string& carry, Nanos deadline_ns,
-                              std::size_t max_line = 256);
+Result<std::string> read_line(SerialPort& port, std::string& carry, Nanos deadline_ns, std::size_t max_line = 256);
 
 }  // namespace slscand::hal

@@ -33,8 +33,8 @@ class Turntable {
 
 // GRBL 1.1 dialect (docs/turntable.md): the table is axis X in degrees.
 struct GrblOptions {
-  double feed_deg_per_min = 3600;  // 60 deg/s
-  double tolerance_deg = 0.05;     // |reported - commanded| allowed after a move
+  double feed_deg_per_min = 3600;         // 60 deg/s
+  double tolerance_deg = 0.05;            // |reported - commanded| allowed after a move
   Nanos reply_timeout_ns = 500 * kMilli;  // for one `ok`
   Nanos poll_interval_ns = 20 * kMilli;   // `?` status polls during a move
   Nanos stall_timeout_ns = 500 * kMilli;  // no progress while running for this long = stalled
@@ -44,8 +44,7 @@ struct GrblOptions {
 class GrblTurntable final : public Turntable {
  public:
   // Resets the controller (Ctrl-X), waits for its banner and sets absolute, degree mode.
-  static Result<std::unique_ptr<GrblTurntable>> connect(std::unique_ptr<SerialPort> port,
-                                                        const GrblOptions& options);
+  static Result<std::unique_ptr<GrblTurntable>> connect(std::unique_ptr<SerialPort> port, const GrblOptions& options);
   Status home(Nanos timeout_ns) override;
   Result<double> rotate_to(double angle_deg, Nanos timeout_ns) override;
   Result<TurntableStatus> status() override;

@@ -46,8 +46,8 @@ struct ScanOutcome {
   std::uint64_t frames_captured = 0;
   std::uint32_t views_completed = 0;
   Nanos duration_ns = 0;
-  std::vector<TimingEvent> events;    // the whole scan's log
-  std::vector<FrameTiming> frames;    // per-frame times for the report
+  std::vector<TimingEvent> events;  // the whole scan's log
+  std::vector<FrameTiming> frames;  // per-frame times for the report
   std::uint64_t backpressure_pauses = 0;
 };
 

@@ -23,13 +23,13 @@ struct FrameTiming {
   std::uint32_t view_index = 0;
   std::uint32_t projector_id = 0;
   std::uint32_t pattern_index = 0;
-  Nanos deadline_ns = 0;         // when the trigger was due
-  Nanos trigger_ns = 0;          // projector TRIG_IN_1 driven
-  Nanos shown_ns = 0;            // projector TRIG_OUT_1 rising (kernel edge timestamp)
-  Nanos exposure_start_ns = 0;   // camera
+  Nanos deadline_ns = 0;        // when the trigger was due
+  Nanos trigger_ns = 0;         // projector TRIG_IN_1 driven
+  Nanos shown_ns = 0;           // projector TRIG_OUT_1 rising (kernel edge timestamp)
+  Nanos exposure_start_ns = 0;  // camera
   Nanos exposure_end_ns = 0;
   Nanos dequeued_ns = 0;
-  bool paused_before = false;    // back-pressure held this frame's trigger back
+  bool paused_before = false;  // back-pressure held this frame's trigger back
 };
 
 struct TimingSummary {
@@ -42,13 +42,13 @@ TimingSummary summarize(std::string name, std::vector<double> values_us);
 
 struct TimingReport {
   double nominal_period_us = 0;
-  TimingSummary pattern_period;      // trigger to trigger within a projector pass
-  TimingSummary period_jitter;       // |period - nominal|
-  TimingSummary trigger_lateness;    // trigger driven - deadline
-  TimingSummary trigger_to_shown;    // TRIG_IN_1 -> TRIG_OUT_1 (projector latency)
-  TimingSummary trigger_to_exposure; // TRIG_IN_1 -> camera exposure start
-  TimingSummary frame_delivery;      // exposure end -> frame dequeued
-  std::uint64_t paused_frames = 0;   // frames held back by back-pressure (excluded from periods)
+  TimingSummary pattern_period;       // trigger to trigger within a projector pass
+  TimingSummary period_jitter;        // |period - nominal|
+  TimingSummary trigger_lateness;     // trigger driven - deadline
+  TimingSummary trigger_to_shown;     // TRIG_IN_1 -> TRIG_OUT_1 (projector latency)
+  TimingSummary trigger_to_exposure;  // TRIG_IN_1 -> camera exposure start
+  TimingSummary frame_delivery;       // exposure end -> frame dequeued
+  std::uint64_t paused_frames = 0;    // frames held back by back-pressure (excluded from periods)
   std::vector<TimingSummary> all() const;
   std::string to_text() const;
 };

@@ -16,10 +16,12 @@
 namespace slscan::core {
 
 struct CornerDetectionOptions {
-  // cv::findChessboardCornersSB (sector based, sub-pixel by design); false: the classic
-  // findChessboardCorners followed by cornerSubPix.
-  bool sector_based = true;
-  int subpixel_half_window = 5;  // cornerSubPix window (classic detector only)
+  // false: the classic cv::findChessboardCorners, falling back to the sector-based
+  // cv::findChessboardCornersSB where it fails; true: the sector-based one only. Either way
+  // the corners are refined with cv::cornerSubPix (the sector-based corners alone scatter by
+  // ~0.25 px on a synthetic board with 1 DN of noise, refined ones by ~0.07 px).
+  bool sector_based = false;
+  int subpixel_half_window = 5;  // upper bound; also kept within 0.35 of the corner spacing
 };
 
 struct CornerDetection {

@@ -22,13 +22,22 @@
 namespace slscan::core {
 
 struct DecodeOptions {
-  int bit_depth = 8;                 // 8 (uint8 frames) or 10/12/16 (uint16 frames)
-  float min_contrast_dn = 12.0f;     // white - black below this: too dark or too far to code
-  float min_modulation_dn = 6.0f;    // phase modulation B below this: unreliable phase
+  int bit_depth = 8;               // 8 (uint8 frames) or 10/12/16 (uint16 frames)
+  float min_contrast_dn = 12.0f;   // white - black below this: too dark or too far to code
+  float min_modulation_dn = 6.0f;  // phase modulation B below this: unreliable phase
   // A pixel at or above this level in any frame is saturated; <= 0 means the top code of
   // bit_depth (255 for 8 bit).
   int saturation_dn = 0;
   int rows_per_task = 16;  // rows per TBB task: all planes of a block stay in cache
+  // Noise reduction of the decoded coordinate over a (2 r + 1)^2 window centred on the pixel:
+  // where the whole window decoded, its mean (a symmetric window keeps a linear ramp
+  // unbiased); where part of it is masked, the value at the centre of a least-squares plane
+  // through the valid pixels (a one-sided mean would be biased by the slope). Used only if it
+  // stays within smoothing_max_deviation_px of the pixel's own value (no averaging across
+  // depth edges; then the 3 x 3 mean, then the raw value). 0 turns it off. Sensor noise in the
+  // phase is the largest per-pixel error on the rig; a 5 x 5 window divides it by ~5.
+  int smoothing_radius = 2;
+  float smoothing_max_deviation_px = 0.25f;
 
   int saturation_level() const { return saturation_dn > 0 ? saturation_dn : (1 << bit_depth) - 1; }
   // Throws std::invalid_argument naming the first impossible field.
@@ -92,6 +101,7 @@ class ProjectorViewDecoder {
   void store_frame(std::size_t pattern_index, const Pixel* data, std::size_t stride);
   template <class Pixel>
   void decode_rows(int row_begin, int row_end, DecodedView& out, DecodeCounts& counts) const;
+  void smooth(DecodedView& out);
 
   slproto::PatternPlan plan_;
   int width_ = 0, height_ = 0;
@@ -104,6 +114,7 @@ class ProjectorViewDecoder {
   std::vector<int> gray_;   // gray_[bit] = pattern index, bit 0 = most significant
   std::vector<int> phase_;  // phase_[n] = pattern index of step n
   std::vector<float> phase_cos_, phase_sin_;
+  std::vector<float> raw_coordinate_;  // before smoothing, reused
 };
 
 }  // namespace slscan::core

@@ -27,7 +27,8 @@ struct FusionResult {
 };
 
 // Both clouds must have the same size (throws std::invalid_argument otherwise).
-FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& right, const FusionOptions& options = {});
+FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& right,
+                             const FusionOptions& options = {});
 
 // Flying pixels (mixed foreground/background at depth edges, shadow borders, isolated noise):
 // a point is kept only if, in at least two independent (not opposite) of the 8 grid

@@ -43,7 +43,7 @@ struct ReconstructionOptions {
   int normal_neighbors = 20;
   bool build_mesh = true;
   PoissonOptions mesh;
-  int max_pending_projector_views = 3;  // decoders in flight (each holds one view's frames)
+  int max_pending_projector_views = 8;  // decoders in flight (each holds one projector-view of frames)
 
   void check() const;  // throws std::invalid_argument naming the field
 };

@@ -25,10 +25,10 @@ struct CameraRayTable {
 };
 
 struct TriangulateOptions {
-  int newton_iterations = 4;           // each one roughly squares the error; 3 reach float precision
-  float max_residual_px = 1e-3f;       // |projected coordinate - decoded| after Newton, projector px
-  float frustum_margin_px = 2.0f;      // the point must project this close to the projector image
-  float min_depth_mm = 1.0f;           // camera z range of plausible points
+  int newton_iterations = 4;       // each one roughly squares the error; 3 reach float precision
+  float max_residual_px = 1e-3f;   // |projected coordinate - decoded| after Newton, projector px
+  float frustum_margin_px = 2.0f;  // the point must project this close to the projector image
+  float min_depth_mm = 1.0f;       // camera z range of plausible points
   float max_depth_mm = 100000.0f;
 
   void check() const;  // throws std::invalid_argument naming the field
@@ -36,11 +36,11 @@ struct TriangulateOptions {
 
 struct TriangulateCounts {
   std::size_t valid = 0;
-  std::size_t not_decoded = 0;       // masked by the decoder
-  std::size_t no_intersection = 0;   // ray parallel to the coordinate's surface, or behind a device
-  std::size_t not_converged = 0;     // Newton residual above max_residual_px
-  std::size_t outside_frustum = 0;   // lands outside the projector image along the other axis
-  std::size_t outside_depth = 0;     // depth outside [min_depth_mm, max_depth_mm]
+  std::size_t not_decoded = 0;      // masked by the decoder
+  std::size_t no_intersection = 0;  // ray parallel to the coordinate's surface, or behind a device
+  std::size_t not_converged = 0;    // Newton residual above max_residual_px
+  std::size_t outside_frustum = 0;  // lands outside the projector image along the other axis
+  std::size_t outside_depth = 0;    // depth outside [min_depth_mm, max_depth_mm]
 };
 
 struct TriangulatedView {

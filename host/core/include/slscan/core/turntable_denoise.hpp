@@ -25,7 +25,7 @@ struct TurntableDenoiseCounts {
   std::size_t input = 0, kept = 0;
   std::size_t below_min_height = 0;  // platform, under it
   std::size_t above_max_height = 0;
-  std::size_t outside_radius = 0;    // background, beside the table
+  std::size_t outside_radius = 0;  // background, beside the table
 };
 
 struct TurntableGeometry {
@@ -33,8 +33,8 @@ struct TurntableGeometry {
   Eigen::Vector3d axis_direction;  // n, unit, pointing up away from the platform
   double radius_mm = 0;
   static TurntableGeometry from(const slproto::TurntableCalibration& calibration);
-  double height(const Eigen::Vector3d& p) const { return axis_direction.dot(p - axis_point); }      // dis1
-  double distance_to_axis(const Eigen::Vector3d& p) const {                                         // dis2
+  double height(const Eigen::Vector3d& p) const { return axis_direction.dot(p - axis_point); }  // dis1
+  double distance_to_axis(const Eigen::Vector3d& p) const {                                     // dis2
     const Eigen::Vector3d d = p - axis_point;
     return (d - axis_direction.dot(d) * axis_direction).norm();
   }

@@ -35,8 +35,8 @@ struct ProjectorViewCounts {
 };
 
 struct ViewResult {
-  OrganizedCloud cloud;                          // fused (and denoised), camera frame
-  std::array<OrganizedCloud, 2> per_projector;   // after flying-pixel removal, before fusion
+  OrganizedCloud cloud;                           // fused (and denoised), camera frame
+  std::array<OrganizedCloud, 2> per_projector;    // after flying-pixel removal, before fusion
   std::array<ProjectorViewCounts, 2> projectors;  // indexed by ProjectorSide
   FusionCounts fusion;
   TurntableDenoiseCounts turntable;
@@ -51,8 +51,7 @@ class ViewPipeline {
   const std::shared_ptr<const CameraRayTable>& rays() const { return rays_; }
 
   void add_frame(slproto::ProjectorSide side, std::size_t pattern_index, const std::uint8_t* data, std::size_t stride);
-  void add_frame(slproto::ProjectorSide side, std::size_t pattern_index, const std::uint16_t* data,
-                 std::size_t stride);
+  void add_frame(slproto::ProjectorSide side, std::size_t pattern_index, const std::uint16_t* data, std::size_t stride);
   // Decode, triangulate and clean one projector's cloud (throws if a frame is missing).
   void finish_projector(slproto::ProjectorSide side);
   // Finishes the projectors not finished yet, fuses and denoises; readies the next view.

@@ -50,8 +50,7 @@ class SimRig {
  public:
   // Builds the scene named by the board (sim.scene, sim.rig_size) and starts the emulated
   // turntable. `scene` overrides the preset when given.
-  static slproto::Result<std::shared_ptr<SimRig>> create(const BoardConfig& board,
-                                                         const slrig::Scene* scene = nullptr);
+  static slproto::Result<std::shared_ptr<SimRig>> create(const BoardConfig& board, const slrig::Scene* scene = nullptr);
   ~SimRig();
   SimRig(const SimRig&) = delete;
   SimRig& operator=(const SimRig&) = delete;

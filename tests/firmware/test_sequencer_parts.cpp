@@ -1,0 +1,144 @@
+// The sequencer's parts that need no devices: the bounded queue's back-pressure, the timing
+// statistics and the validation of scan requests against a board.
+#include <gtest/gtest.h>
+
+#include <thread>
+
+#include "slscand/hal/board.hpp"
+#include "slscand/sequencer/bounded_queue.hpp"
+#include "slscand/sequencer/scan_plan.hpp"
+#include "slscand/sequencer/timing.hpp"
+
+using namespace slscand;
+namespace pb = slproto::pb;
+
+TEST(BoundedQueue, BlocksWhenFullAndNeverDrops) {
+  BoundedQueue<int> queue(2);
+  std::atomic<bool> abort{false};
+  int a = 1, b = 2, c = 3;
+  ASSERT_TRUE(queue.push(a, abort));
+  ASSERT_TRUE(queue.push(b, abort));
+  EXPECT_TRUE(queue.full());
+  std::atomic<bool> pushed{false};
+  std::thread producer([&] {
+    pushed = queue.push(c, abort);  // blocks until the consumer makes room
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  EXPECT_FALSE(pushed.load());
+  EXPECT_EQ(queue.pop(std::chrono::milliseconds(10)).value(), 1);
+  producer.join();
+  EXPECT_TRUE(pushed.load());
+  EXPECT_EQ(queue.pop(std::chrono::milliseconds(10)).value(), 2);
+  EXPECT_EQ(queue.pop(std::chrono::milliseconds(10)).value(), 3);
+  EXPECT_FALSE(queue.pop(std::chrono::milliseconds(1)).has_value());
+  EXPECT_EQ(queue.high_water(), 2u);
+}
+
+TEST(BoundedQueue, AbortAndCloseReleaseABlockedProducer) {
+  BoundedQueue<int> queue(1);
+  std::atomic<bool> abort{false};
+  int a = 1, b = 2;
+  ASSERT_TRUE(queue.push(a, abort));
+  std::thread producer([&] { EXPECT_FALSE(queue.push(b, abort)); });
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  abort = true;
+  producer.join();
+  queue.close();
+  EXPECT_EQ(queue.pop(std::chrono::milliseconds(1)).value(), 1);  // drained after close
+  EXPECT_TRUE(queue.closed_and_empty());
+}
+
+TEST(Timing, SummaryPercentilesAreNearestRank) {
+  std::vector<double> values;
+  for (int i = 1; i <= 100; ++i) values.push_back(i);
+  const TimingSummary s = summarize("x", values);
+  EXPECT_EQ(s.count, 100u);
+  EXPECT_DOUBLE_EQ(s.mean_us, 50.5);
+  EXPECT_DOUBLE_EQ(s.p50_us, 50);
+  EXPECT_DOUBLE_EQ(s.p99_us, 99);
+  EXPECT_DOUBLE_EQ(s.min_us, 1);
+  EXPECT_DOUBLE_EQ(s.max_us, 100);
+  EXPECT_EQ(summarize("empty", {}).count, 0u);
+}
+
+TEST(Timing, ReportSeparatesPassesAndPauses) {
+  std::vector<FrameTiming> frames;
+  const Nanos period = 5000 * kMicro;
+  for (std::uint32_t side = 0; side < 2; ++side) {
+    for (std::uint32_t i = 0; i < 4; ++i) {
+      FrameTiming f;
+      f.projector_id = side;
+      f.pattern_index = i;
+      f.deadline_ns = side * kSecond + i * period;
+      f.trigger_ns = f.deadline_ns + 10 * kMicro + (i == 2 ? 40 * kMicro : 0);  // one late trigger
+      f.shown_ns = f.trigger_ns + 15 * kMicro;
+      f.exposure_start_ns = f.trigger_ns + 20 * kMicro;
+      f.exposure_end_ns = f.exposure_start_ns + 2000 * kMicro;
+      f.dequeued_ns = f.exposure_end_ns + 1500 * kMicro;
+      f.paused_before = side == 1 && i == 3;
+      frames.push_back(f);
+    }
+  }
+  const TimingReport r = make_timing_report(frames, 5000);
+  // 3 periods per pass, minus the paused one; never across the pass boundary.
+  EXPECT_EQ(r.pattern_period.count, 5u);
+  EXPECT_NEAR(r.period_jitter.max_us, 40, 1e-6);
+  EXPECT_NEAR(r.trigger_to_exposure.mean_us, 20, 1e-6);
+  EXPECT_NEAR(r.trigger_to_shown.max_us, 15, 1e-6);
+  EXPECT_NEAR(r.frame_delivery.p50_us, 1500, 1e-6);
+  EXPECT_NEAR(r.trigger_lateness.max_us, 50, 1e-6);
+  EXPECT_EQ(r.paused_frames, 1u);
+  EXPECT_NE(r.to_text().find("trigger_to_exposure_start"), std::string::npos);
+}
+
+namespace {
+pb::ScanRequest good_request() {
+  pb::ScanRequest r;
+  r.set_scan_id(7);
+  for (double a : {0.0, 60.0}) r.add_turntable_angles_deg(a);
+  r.add_projectors(0);
+  r.add_projectors(1);
+  *r.mutable_plan() = slproto::to_proto(slproto::PatternPlanConfig{});
+  r.set_exposure_us(2000);
+  r.set_pattern_period_us(5000);
+  r.set_pixel_format(pb::PIXEL_FORMAT_MONO8);
+  r.set_timing_events(true);
+  return r;
+}
+}  // namespace
+
+TEST(ScanPlan, AcceptsWhatTheBoardCanDoAndRefusesTheRestWithAReason) {
+  auto board = hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml");
+  ASSERT_TRUE(board.ok());
+  const hal::CameraFormat camera{640, 512, hal::PixelFormat::mono8, 640};
+  auto plan = make_scan_plan(good_request(), *board, camera);
+  ASSERT_TRUE(plan.ok()) << plan.error().message;
+  EXPECT_EQ(plan->frames_total(), 2u * 2u * 19u);
+  EXPECT_EQ(plan->settle_ns, 50 * kMilli);  // the board's, since the request left it 0
+
+  auto refused = [&](pb::ScanRequest r, const std::string& expected) {
+    auto p = make_scan_plan(r, *board, camera);
+    ASSERT_FALSE(p.ok()) << expected;
+    EXPECT_NE(p.error().message.find(expected), std::string::npos) << p.error().message;
+    EXPECT_NE(p.error().message.find("scan 7 refused"), std::string::npos);
+  };
+  auto r = good_request();
+  r.set_exposure_us(100);
+  r.set_pattern_period_us(5000);
+  refused(r, "235 us");
+  r = good_request();
+  r.set_pattern_period_us(2500);  // exposure 2000 + read-out 1500 do not fit
+  refused(r, "shorter than trigger delay + exposure + read-out");
+  r = good_request();
+  r.set_trigger_delay_us(100);
+  refused(r, "trigger_delay_us must be 0");
+  r = good_request();
+  r.set_pixel_format(pb::PIXEL_FORMAT_MONO12);
+  refused(r, "set up for mono8");
+  r = good_request();
+  r.add_projectors(2);
+  refused(r, "projector");
+  r = good_request();
+  r.clear_turntable_angles_deg();
+  refused(r, "angle");
+}

@@ -1,0 +1,341 @@
+// slscand on the sim board, driven by a host over loopback: a full 6-view scan arrives in
+// order with its timing log; abort, disconnect and each device fault end the scan cleanly
+// (projectors dark, an error naming the cause) and leave the daemon ready for the next scan.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "slproto/handshake.hpp"
+#include "slproto/transport.hpp"
+#include "slscand/app/daemon.hpp"
+#include "slscand/hal/sim/sim_rig.hpp"
+
+using namespace slscand;
+using namespace std::chrono_literals;
+namespace pb = slproto::pb;
+
+namespace {
+
+class DaemonFixture : public ::testing::Test {
+ protected:
+  void start(double frame_timeout_ms = 20000, std::string timing_log_dir = {}) {
+    auto board = hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml");
+    ASSERT_TRUE(board.ok()) << board.error().message;
+    // The renderer's speed (ASan, a loaded CI machine) is not part of the timing model.
+    board->frame_timeout_ms = frame_timeout_ms;
+    auto devices = hal::open_board_devices(*board);
+    ASSERT_TRUE(devices.ok()) << devices.error().message;
+    DaemonOptions options;
+    options.port = 0;
+    options.realtime = false;
+    options.timing_log_dir = std::move(timing_log_dir);
+    auto daemon = Daemon::create(*board, std::move(*devices), options);
+    ASSERT_TRUE(daemon.ok()) << daemon.error().message;
+    daemon_ = std::move(*daemon);
+    server_ = std::thread([this] { daemon_->serve(); });
+  }
+  void TearDown() override {
+    if (daemon_) daemon_->stop();
+    if (server_.joinable()) server_.join();
+  }
+
+  slproto::Connection connect() {
+    auto connection = slproto::connect("127.0.0.1", daemon_->port(), 5s);
+    EXPECT_TRUE(connection.ok()) << connection.error().message;
+    auto reply = slproto::client_handshake(*connection, slproto::make_hello("test", "0"));
+    EXPECT_TRUE(reply.ok()) << reply.error().message;
+    EXPECT_EQ(reply->board_name(), "sim");
+    EXPECT_TRUE(reply->capabilities() & pb::CAPABILITY_SIMULATED);
+    return std::move(*connection);
+  }
+
+  static pb::ScanRequest request(std::uint64_t id, int views) {
+    pb::ScanRequest r;
+    r.set_scan_id(id);
+    for (int v = 0; v < views; ++v) r.add_turntable_angles_deg(60.0 * v);
+    r.add_projectors(0);
+    r.add_projectors(1);
+    *r.mutable_plan() = slproto::to_proto(slproto::PatternPlanConfig{});
+    r.set_exposure_us(2000);
+    r.set_pattern_period_us(5000);
+    r.set_pixel_format(pb::PIXEL_FORMAT_MONO8);
+    r.set_timing_events(true);
+    return r;
+  }
+
+  struct Received {
+    std::vector<pb::FrameHeader> frames;
+    std::vector<double> means;  // mean pixel value per frame
+    std::vector<pb::Error> errors;
+    std::optional<pb::ScanDone> done;
+    int progress = 0;
+  };
+
+  // Receives until ScanDone (or `stop_after` frames, then returns without it).
+  static Received receive_scan(slproto::Connection& c, std::size_t stop_after = SIZE_MAX) {
+    Received r;
+    while (r.frames.size() < stop_after) {
+      auto m = c.receive(60s);
+      EXPECT_TRUE(m.ok()) << m.error().message;
+      if (!m) break;
+      if (const auto* f = m->get<pb::FrameHeader>()) {
+        r.frames.push_back(*f);
+        double sum = 0;
+        for (std::byte b : m->payload) sum += static_cast<double>(std::to_integer<int>(b));
+        r.means.push_back(m->payload.empty() ? 0 : sum / static_cast<double>(m->payload.size()));
+      } else if (const auto* e = m->get<pb::Error>()) {
+        r.errors.push_back(*e);
+      } else if (const auto* d = m->get<pb::ScanDone>()) {
+        r.done = *d;
+        break;
+      } else if (m->get<pb::Progress>() != nullptr) {
+        r.progress++;
+      }
+    }
+    return r;
+  }
+
+  void expect_dark_and_idle() {
+    const auto& board = daemon_->board();
+    auto& rig = *daemon_->devices().sim_rig;
+    for (int side = 0; side < 2; ++side) {
+      EXPECT_FALSE(rig.line_value(board.projectors[side].trig_in_2)) << "projector " << side << " still running";
+    }
+    EXPECT_EQ(rig.projectors_lit(), (std::array<bool, 2>{false, false}));
+    EXPECT_FALSE(daemon_->busy());
+  }
+
+  std::unique_ptr<Daemon> daemon_;
+  std::thread server_;
+};
+
+bool has_event(const pb::FrameHeader& f, pb::TimingEventKind kind) {
+  for (const auto& e : f.timing_events()) {
+    if (e.kind() == kind) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+TEST_F(DaemonFixture, FullSixViewScanArrivesInOrderWithTimingLog) {
+  start();
+  slproto::Connection c = connect();
+  ASSERT_TRUE(c.send(request(42, 6)).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
+  EXPECT_TRUE(r.errors.empty());
+  EXPECT_EQ(r.done->frames_sent(), 6u * 2u * 19u);
+  EXPECT_EQ(r.done->views_completed(), 6u);
+  EXPECT_EQ(r.done->frames_dropped(), 0u);
+  EXPECT_GE(r.progress, 6 * 3);  // moving, settling, capturing per view
+  ASSERT_EQ(r.frames.size(), 6u * 2u * 19u);
+  const slproto::PatternPlan plan;
+  std::size_t k = 0;
+  for (std::uint32_t view = 0; view < 6; ++view) {
+    for (std::uint32_t side = 0; side < 2; ++side) {
+      for (std::uint32_t p = 0; p < 19; ++p, ++k) {
+        const pb::FrameHeader& f = r.frames[k];
+        ASSERT_EQ(f.sequence(), k);
+        EXPECT_EQ(f.scan_id(), 42u);
+        EXPECT_EQ(f.view_index(), view);
+        EXPECT_DOUBLE_EQ(f.commanded_angle_deg(), 60.0 * view);
+        EXPECT_NEAR(f.reported_angle_deg(), 60.0 * view, 0.05);
+        EXPECT_EQ(f.projector_id(), side);
+        EXPECT_EQ(f.pattern_index(), p);
+        EXPECT_EQ(f.pattern_kind(), static_cast<pb::PatternKind>(plan[p].kind));
+        EXPECT_EQ(f.width(), 640u);
+        EXPECT_EQ(f.height(), 512u);
+        // Timestamps in causal order, and the log that produced them travels with the frame.
+        EXPECT_GT(f.trigger_ns(), 0u);
+        EXPECT_GE(f.exposure_start_ns(), f.trigger_ns());
+        EXPECT_EQ(f.exposure_end_ns() - f.exposure_start_ns(), 2000u * 1000u);
+        EXPECT_GE(f.readout_ns(), f.exposure_end_ns());
+        EXPECT_TRUE(has_event(f, pb::TIMING_EVENT_PROJECTOR_TRIGGER));
+        EXPECT_TRUE(has_event(f, pb::TIMING_EVENT_PATTERN_SHOWN));
+        EXPECT_TRUE(has_event(f, pb::TIMING_EVENT_EXPOSURE_START));
+        EXPECT_TRUE(has_event(f, pb::TIMING_EVENT_FRAME_DEQUEUED));
+        if (side == 0 && p == 0) {
+          EXPECT_TRUE(has_event(f, pb::TIMING_EVENT_TURNTABLE_MOVE_DONE));
+          EXPECT_TRUE(has_event(f, pb::TIMING_EVENT_SETTLE_DONE));
+        }
+      }
+      // The camera really saw the sequence: the white frame outshines the black one.
+      const std::size_t first = k - 19;
+      EXPECT_GT(r.means[first], r.means[first + 1] + 5) << "view " << view << " side " << side;
+    }
+  }
+  bool has_period = false;
+  for (const auto& stat : r.done->timing()) {
+    if (stat.name() == "pattern_period") {
+      has_period = true;
+      EXPECT_GT(stat.count(), 0u);
+      EXPECT_GT(stat.mean_us(), 4000);
+    }
+  }
+  EXPECT_TRUE(has_period);
+  expect_dark_and_idle();
+}
+
+TEST_F(DaemonFixture, AbortEndsTheScanAndTheNextOneRuns) {
+  start();
+  slproto::Connection c = connect();
+  ASSERT_TRUE(c.send(request(1, 6)).ok());
+  Received partial = receive_scan(c, 10);
+  ASSERT_EQ(partial.frames.size(), 10u);
+  pb::Abort abort;
+  abort.set_scan_id(1);
+  abort.set_reason("operator");
+  ASSERT_TRUE(c.send(abort).ok());
+  const Received rest = receive_scan(c);
+  ASSERT_TRUE(rest.done.has_value());
+  EXPECT_EQ(rest.done->final_state(), pb::SCAN_STATE_ABORTED);
+  EXPECT_NE(rest.done->text().find("aborted by the host: operator"), std::string::npos) << rest.done->text();
+  EXPECT_LT(partial.frames.size() + rest.frames.size(), 6u * 2u * 19u);
+  expect_dark_and_idle();
+
+  ASSERT_TRUE(c.send(request(2, 1)).ok());
+  const Received next = receive_scan(c);
+  ASSERT_TRUE(next.done.has_value());
+  EXPECT_EQ(next.done->final_state(), pb::SCAN_STATE_DONE) << next.done->text();
+  EXPECT_EQ(next.frames.size(), 38u);
+  EXPECT_EQ(next.frames.front().sequence(), 0u);
+}
+
+TEST_F(DaemonFixture, HostDisconnectLeavesTheDaemonReady) {
+  start();
+  {
+    slproto::Connection c = connect();
+    ASSERT_TRUE(c.send(request(5, 6)).ok());
+    Received partial = receive_scan(c, 5);
+    ASSERT_EQ(partial.frames.size(), 5u);
+    c.close();
+  }
+  for (int i = 0; i < 500 && (daemon_->stats().scans_aborted + daemon_->stats().scans_failed) == 0; ++i) {
+    std::this_thread::sleep_for(20ms);
+  }
+  const DaemonStats stats = daemon_->stats();
+  EXPECT_EQ(stats.scans_aborted + stats.scans_failed, 1u);
+  EXPECT_NE(stats.last_error.find("host"), std::string::npos) << stats.last_error;
+  expect_dark_and_idle();
+
+  slproto::Connection again = connect();
+  ASSERT_TRUE(again.send(request(6, 1)).ok());
+  const Received next = receive_scan(again);
+  ASSERT_TRUE(next.done.has_value());
+  EXPECT_EQ(next.done->final_state(), pb::SCAN_STATE_DONE) << next.done->text();
+  EXPECT_EQ(next.frames.size(), 38u);
+}
+
+TEST_F(DaemonFixture, FaultsAreReportedWithTheirCause) {
+  start(/*frame_timeout_ms=*/20000);
+  slproto::Connection c = connect();
+  hal::sim::SimRig& rig = *daemon_->devices().sim_rig;
+
+  // A projector that does not acknowledge.
+  hal::sim::SimFaults faults;
+  faults.projector_silent[1] = true;
+  rig.set_faults(faults);
+  ASSERT_TRUE(c.send(request(10, 1)).ok());
+  Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_EQ(slproto::errc_from_wire(r.errors[0].code()), slproto::Errc::hardware);
+  EXPECT_NE(r.errors[0].text().find("projector.right did not acknowledge"), std::string::npos) << r.errors[0].text();
+  EXPECT_EQ(r.frames.size(), 19u);  // the left pass was complete and delivered
+  expect_dark_and_idle();
+
+  // A turntable whose motor stalls.
+  rig.set_faults({});
+  hal::sim::TurntableFaults table_faults;
+  table_faults.stall_at_deg = 30;
+  rig.turntable().set_faults(table_faults);
+  ASSERT_TRUE(c.send(request(11, 2)).ok());
+  r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_NE(r.errors[0].text().find("stalled"), std::string::npos) << r.errors[0].text();
+  EXPECT_FALSE(rig.turntable().moving());
+  expect_dark_and_idle();
+
+  // Faults cleared: the same connection scans again.
+  rig.turntable().set_faults({});
+  ASSERT_TRUE(c.send(request(12, 1)).ok());
+  r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
+  EXPECT_EQ(r.frames.size(), 38u);
+}
+
+TEST_F(DaemonFixture, CameraTimeoutIsReported) {
+  start(/*frame_timeout_ms=*/300);
+  slproto::Connection c = connect();
+  hal::sim::SimFaults faults;
+  faults.camera_silent = true;
+  daemon_->devices().sim_rig->set_faults(faults);
+  ASSERT_TRUE(c.send(request(20, 1)).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_NE(r.errors[0].text().find("camera timeout at view 0, left projector, pattern 0"), std::string::npos)
+      << r.errors[0].text();
+  expect_dark_and_idle();
+}
+
+TEST_F(DaemonFixture, RefusedAndBusyRequests) {
+  start();
+  slproto::Connection c = connect();
+  pb::ScanRequest bad = request(30, 1);
+  bad.set_exposure_us(100);
+  ASSERT_TRUE(c.send(bad).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_NE(r.errors[0].text().find("235 us"), std::string::npos);
+  EXPECT_EQ(daemon_->stats().scans_refused, 1u);
+
+  // A second request while one runs is answered "busy"; the first completes.
+  ASSERT_TRUE(c.send(request(31, 1)).ok());
+  ASSERT_TRUE(c.send(request(32, 1)).ok());
+  const Received first = receive_scan(c);
+  ASSERT_TRUE(first.done.has_value());
+  EXPECT_EQ(first.done->scan_id(), 31u);
+  EXPECT_EQ(first.done->final_state(), pb::SCAN_STATE_DONE);
+  ASSERT_EQ(first.errors.size(), 1u);
+  EXPECT_EQ(slproto::errc_from_wire(first.errors[0].code()), slproto::Errc::busy);
+}
+
+TEST_F(DaemonFixture, TimingLogIsWrittenOnTheBoard) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / ("slscand-timing-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  start(20000, dir.string());
+  slproto::Connection c = connect();
+  ASSERT_TRUE(c.send(request(77, 1)).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  ASSERT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
+  std::ifstream in(dir / "scan-77-timing.csv");
+  ASSERT_TRUE(in.good());
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string log = text.str();
+  auto count = [&](const std::string& kind) {
+    std::size_t n = 0;
+    for (std::size_t pos = log.find(kind); pos != std::string::npos; pos = log.find(kind, pos + 1)) ++n;
+    return n;
+  };
+  EXPECT_EQ(count("TIMING_EVENT_PROJECTOR_TRIGGER,"), 38u);
+  EXPECT_EQ(count("TIMING_EVENT_FRAME_SENT,"), 38u);  // only the board's log has the send times
+  EXPECT_EQ(count("TIMING_EVENT_TURNTABLE_MOVE_DONE,"), 1u);
+  std::filesystem::remove_all(dir);
+}
