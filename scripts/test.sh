@@ -3,9 +3,10 @@
 #   1. installs the Debian packages (scripts/bootstrap.sh, idempotent)
 #   2. dev build (warnings as errors) and the full CTest suite
 #   3. ASan + UBSan build and the same suite
-#   4. each libFuzzer target for a short fixed time on its committed corpus
-#   5. clang-format check of every source file
-# Usage: scripts/test.sh            (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 to shorten)
+#   4. the libgpiod v2 GPIO backend, compiled and unit-tested against bookworm-backports' 2.x
+#   5. each libFuzzer target for a short fixed time on its committed corpus
+#   6. clang-format check of every source file
+# Usage: scripts/test.sh   (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 / SLSCAN_SKIP_GPIOD2=1 to shorten)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -26,6 +27,15 @@ if [ "${SLSCAN_SKIP_ASAN:-0}" != 1 ]; then
   cmake --preset asan >/dev/null
   cmake --build --preset asan -j "$jobs"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --preset asan
+fi
+
+if [ "${SLSCAN_SKIP_GPIOD2:-0}" != 1 ]; then
+  step "libgpiod v2 backend"
+  pc=$(scripts/fetch-libgpiod2.sh | tail -n1)
+  PKG_CONFIG_PATH=$pc cmake -S . -B build/gpiod2 -G Ninja -DSLSCAN_WERROR=ON -DSLSCAN_BUILD_HOST=OFF \
+    -DSLSCAN_BUILD_BENCH=OFF >/dev/null
+  cmake --build build/gpiod2 -j "$jobs" --target test_firmware_gpio
+  build/gpiod2/tests/firmware/test_firmware_gpio
 fi
 
 if [ "${SLSCAN_SKIP_FUZZ:-0}" != 1 ] && [ -d tests/fuzz ]; then

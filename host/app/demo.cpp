@@ -34,7 +34,7 @@ fs::path executable_dir() {
   return ec ? fs::current_path() : self.parent_path();
 }
 
-// The board file of the demo: the sim board with the demo's scene and size, on any free port.
+// The board file of the demo: the sim board with the demo's scene and size.
 std::string demo_board(const std::string& template_path, const std::string& scene, bool small) {
   std::ifstream in(template_path);
   if (!in) throw io::IoError(template_path + ": cannot read the sim board file");
@@ -48,7 +48,6 @@ std::string demo_board(const std::string& template_path, const std::string& scen
   };
   replace("scene", "\"" + scene + "\"");
   replace("rig_size", small ? "\"small\"" : "\"full\"");
-  replace("port", "0");
   return board;
 }
 
@@ -61,7 +60,7 @@ class Daemon {
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_adddup2(&actions, out[1], STDOUT_FILENO);
     posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, log_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    std::vector<std::string> args{slscand, "--board", board_path, "--no-realtime"};
+    std::vector<std::string> args{slscand, "--board", board_path, "--port", "0", "--no-realtime"};
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);

@@ -2,6 +2,7 @@
 #include <CLI/CLI.hpp>
 #include <iostream>
 
+#include "real_data.hpp"
 #include "run.hpp"
 #include "slscan/io/ply.hpp"
 
@@ -68,6 +69,38 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   measure_cmd->add_flag("--json", measure.json, "Print the figures as JSON");
 
+  ImportCommand import;
+  auto* import_cmd = app.add_subcommand(
+      "import", "Turn another scanner's images, sequence description and calibration into a capture");
+  import_cmd->add_option("description", import.description_path, "Sequence description (JSON, docs/real-data.md)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  import_cmd->add_option("--calib", import.calibration_path, "Calibration: OpenCV FileStorage or ours (JSON)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  import_cmd->add_option("--out", import.output_dir, "Output folder (capture.slcap, calibration.json)")->required();
+  import_cmd->add_option("--pose-direction", import.pose_direction, "How the file's R, T map points")
+      ->check(CLI::IsMember({"proj_from_cam", "cam_from_proj"}))
+      ->capture_default_str();
+
+  CompareCommand compare;
+  auto* compare_cmd = app.add_subcommand("compare", "Differences between a measured cloud and a reference cloud");
+  compare_cmd->add_option("measured", compare.measured_path, "Measured cloud (PLY)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  compare_cmd->add_option("reference", compare.reference_path, "Reference cloud (PLY)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  compare_cmd
+      ->add_option("--calib", compare.calibration_path, "Calibration, to find camera pixels of clouds without u, v")
+      ->check(CLI::ExistingFile);
+  compare_cmd->add_option("--max-distance", compare.max_distance_mm, "Farther points count as unmatched (mm)")
+      ->capture_default_str();
+  compare_cmd->add_option("--neighbors", compare.surface_neighbors, "Reference points per local surface")
+      ->capture_default_str();
+  compare_cmd->add_flag("--json", compare.json, "Print the figures as JSON");
+  compare_cmd->add_option("--report", compare.report_path, "Also write the figures to this JSON file");
+
 #ifdef SLSCAN_WITH_DEMO
   DemoCommand demo;
   auto* demo_cmd = app.add_subcommand("demo", "Start slscand on the sim board, scan a scene and reconstruct it");
@@ -88,6 +121,8 @@ int main(int argc, char** argv) {
       std::tie(scan.host, scan.port) = split_host_port(connect);
       return run_scan(scan, console);
     }
+    if (*import_cmd) return run_import(import, console);
+    if (*compare_cmd) return run_compare(compare, console);
 #ifdef SLSCAN_WITH_DEMO
     if (*demo_cmd) return run_demo(demo, console);
 #endif

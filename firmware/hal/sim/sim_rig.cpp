@@ -3,6 +3,7 @@
 #include <pthread.h>
 #include <sched.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
@@ -297,8 +298,11 @@ void SimRig::Core::run_scheduler() {
       lock.lock();
       continue;
     }
+    // Device reactions happen at their model time, not when this thread got to run them: on
+    // a loaded machine the scheduler may run late, and a late "exposure start" must still see
+    // the pattern that the model says was lit then.
     auto node = events.extract(events.begin());
-    node.mapped()(monotonic_now_ns());
+    node.mapped()(due);
   }
 }
 
@@ -529,8 +533,15 @@ void SimRig::set_faults(const SimFaults& faults) {
 }
 
 std::vector<RecordedEdge> SimRig::recorded_edges() const {
-  std::lock_guard lock(core_->mutex);
-  return core_->edges;
+  std::vector<RecordedEdge> edges;
+  {
+    std::lock_guard lock(core_->mutex);
+    edges = core_->edges;
+  }
+  // Device edges carry model times and may be executed after a later host edge was recorded.
+  std::stable_sort(edges.begin(), edges.end(),
+                   [](const RecordedEdge& a, const RecordedEdge& b) { return a.timestamp_ns < b.timestamp_ns; });
+  return edges;
 }
 
 std::vector<ExposureRecord> SimRig::exposures() const {

@@ -201,7 +201,6 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
         // The first trigger leaves a millisecond for the projector to arm its sequence.
         Nanos t0 = monotonic_now_ns() + kMilli;
         bool paused = false;
-        Nanos previous_trigger = 0;
         Nanos previous_shown = 0;
         for (std::size_t i = 0; i < plan.patterns.size(); ++i) {
           if (auto f = fail_if_aborted()) return f;
@@ -213,12 +212,10 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
             t0 += late;
             deadline += late;
           }
-          // After a late trigger (a late wake-up), never catch up by triggering sooner than one
-          // period after it, nor before the projector's last exposure (known from its TRIG_OUT_1
-          // edge) has ended: the projector would be advanced mid-exposure. The slip shows in
-          // the period statistics.
-          const Nanos earliest =
-              std::max(previous_trigger + plan.period_ns, previous_shown + plan.exposure_ns + 100 * kMicro);
+          // After a late trigger (a late wake-up) never catch up by advancing the projector before
+          // its last exposure (known from its TRIG_OUT_1 edge) has ended. Only then: ordinary
+          // wake-up latency must not accumulate into the deadlines, so they stay absolute.
+          const Nanos earliest = previous_shown + plan.exposure_ns + 100 * kMicro;
           if (i > 0 && deadline < earliest) {
             const Nanos slip = earliest - deadline;
             t0 += slip;
@@ -245,7 +242,6 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
           auto trigger = projector.advance();
           if (!trigger) return Failure{pb::SCAN_STATE_FAILED, trigger.error()};
           timing.trigger_ns = *trigger;
-          previous_trigger = *trigger;
           log(pb::TIMING_EVENT_PROJECTOR_TRIGGER, *trigger, projector_id);
           if (devices_.camera_trigger) {
             sleep_until_ns(*trigger + plan.trigger_delay_ns);

@@ -1,10 +1,9 @@
 #include "slscan/io/foreign_calibration.hpp"
 
-#include <opencv2/calib3d.hpp>
-#include <opencv2/core.hpp>
-
 #include <cmath>
 #include <fstream>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
 #include <sstream>
 #include <vector>
 
@@ -71,8 +70,7 @@ void read_intrinsics(const cv::Mat& k, const std::string& path, const std::strin
   model.cy = k.at<double>(1, 2);
 }
 
-void read_distortion(const cv::Mat& d, const std::string& path, const std::string& name,
-                     slproto::LensDistortion& out) {
+void read_distortion(const cv::Mat& d, const std::string& path, const std::string& name, slproto::LensDistortion& out) {
   const int n = static_cast<int>(d.total());
   if (n != 4 && n != 5 && n != 8 && n != 12 && n != 14)
     throw IoError(path + ": " + name + " has " + std::to_string(n) +
@@ -92,14 +90,14 @@ void read_distortion(const cv::Mat& d, const std::string& path, const std::strin
 int read_int(const cv::FileStorage& fs, std::initializer_list<const char*> names, int fallback) {
   std::string found;
   cv::FileNode node = first_of(fs, names, found);
-  if (node.empty() || !node.isReal() && !node.isInt()) return fallback;
+  if (node.empty() || (!node.isReal() && !node.isInt())) return fallback;
   return static_cast<int>(std::lround(static_cast<double>(node)));
 }
 
 double read_real(const cv::FileStorage& fs, std::initializer_list<const char*> names) {
   std::string found;
   cv::FileNode node = first_of(fs, names, found);
-  if (node.empty() || !node.isReal() && !node.isInt()) return 0.0;
+  if (node.empty() || (!node.isReal() && !node.isInt())) return 0.0;
   return static_cast<double>(node);
 }
 
@@ -173,8 +171,8 @@ slproto::RigCalibration read_foreign_calibration(const std::string& path, const 
                                 path, "camera width");
   rig.camera.height = merge_size(read_int(fs, {"frameHeight", "image_height", "camera_height"}, 0),
                                  options.camera_height, path, "camera height");
-  projector.intrinsics.width = merge_size(read_int(fs, {"screenResX", "projector_width"}, 0), options.projector_width,
-                                          path, "projector width");
+  projector.intrinsics.width =
+      merge_size(read_int(fs, {"screenResX", "projector_width"}, 0), options.projector_width, path, "projector width");
   projector.intrinsics.height = merge_size(read_int(fs, {"screenResY", "projector_height"}, 0),
                                            options.projector_height, path, "projector height");
   rig.camera_reprojection_rms_px = read_real(fs, {"cam_error", "camera_rms"});

@@ -1,14 +1,13 @@
 #include "slscan/io/image_sequence_import.hpp"
 
-#include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
-
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 
 #include "slproto/capture.hpp"
@@ -87,8 +86,8 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
     fail(origin, std::string("not valid JSON: ") + e.what());
   }
   if (!doc.is_object()) fail(origin, "the description must be a JSON object");
-  static const char* known[] = {"projector", "axis", "camera", "white", "black", "gray", "phase", "complementary",
-                                "inverse",   "comment"};
+  static const char* known[] = {"projector", "axis",  "camera",        "white",   "black",
+                                "gray",      "phase", "complementary", "inverse", "comment"};
   for (const auto& [key, value] : doc.items())
     if (std::find(std::begin(known), std::end(known), key) == std::end(known))
       fail(origin, "unknown field '" + key + "'");
@@ -118,10 +117,12 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
   if (has_white != has_black) fail(origin, "white and black frames come as a pair: only one is given");
   d.plan.with_white_black = has_white;
 
-  if (!doc.contains("gray") || !doc["gray"].is_object()) fail(origin, "gray {files, bit_order, bits_not_projected} is missing");
+  if (!doc.contains("gray") || !doc["gray"].is_object())
+    fail(origin, "gray {files, bit_order, bits_not_projected} is missing");
   const json& gray = doc["gray"];
   for (const auto& [key, value] : gray.items())
-    if (key != "files" && key != "bit_order" && key != "bits_not_projected") fail(origin, "unknown field 'gray." + key + "'");
+    if (key != "files" && key != "bit_order" && key != "bits_not_projected")
+      fail(origin, "unknown field 'gray." + key + "'");
   if (!gray.contains("files")) fail(origin, "gray.files is missing");
   std::vector<std::string> gray_files = file_list(gray["files"], origin, "gray.files");
   const std::string order = gray.value("bit_order", std::string("msb_first"));
@@ -206,8 +207,8 @@ ImportedSequence read_image_sequence(const SequenceDescription& description) {
   out.frames.reserve(description.files.size());
   for (std::size_t i = 0; i < description.files.size(); ++i) {
     const std::string& path = description.files[i];
-    const std::string what = path + " (" + slproto::pattern_kind_name(out.plan[i].kind) + " " +
-                             std::to_string(out.plan[i].index) + ")";
+    const std::string what =
+        path + " (" + slproto::pattern_kind_name(out.plan[i].kind) + " " + std::to_string(out.plan[i].index) + ")";
     if (!fs::is_regular_file(path)) throw IoError(what + ": no such image file");
     cv::Mat image;
     try {
@@ -223,7 +224,10 @@ ImportedSequence read_image_sequence(const SequenceDescription& description) {
     }
     if (image.channels() != 1) throw IoError(what + ": " + std::to_string(image.channels()) + " channels");
     if (image.depth() != expected_cv_depth)
-      throw IoError(what + ": the image is " + (image.depth() == CV_8U ? "8" : image.depth() == CV_16U ? "16" : "float") +
+      throw IoError(what + ": the image is " +
+                    (image.depth() == CV_8U    ? "8"
+                     : image.depth() == CV_16U ? "16"
+                                               : "float") +
                     "-bit, the description says camera.bit_depth " + std::to_string(description.bit_depth));
     if (i == 0) {
       out.width = image.cols;
@@ -295,6 +299,7 @@ void write_imported_capture(const std::string& path, const ImportedSequence& seq
     const auto& frame = sequence.frames[pattern];
     const std::span<const std::byte> payload(reinterpret_cast<const std::byte*>(frame.data()), frame.size());
     header.set_payload_crc32c(slproto::crc32c(payload));
+    record.clear();  // encode() appends
     check(slproto::encode(header, payload, record));
     check(capture->append(record));
   }

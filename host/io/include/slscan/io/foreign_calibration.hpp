@@ -40,7 +40,8 @@ struct ForeignCalibrationOptions {
 
 // Reads `path` (format chosen by content: JSON with "format_version" is ours, anything else
 // goes through cv::FileStorage). Throws IoError naming the file and the missing or bad entry.
-slproto::RigCalibration read_foreign_calibration(const std::string& path, const ForeignCalibrationOptions& options = {});
+slproto::RigCalibration read_foreign_calibration(const std::string& path,
+                                                 const ForeignCalibrationOptions& options = {});
 
 // The placeholder turntable of a rig without one (see above).
 slproto::TurntableCalibration placeholder_turntable();

@@ -25,9 +25,9 @@
 namespace slscan::io {
 
 struct SequenceDescription {
-  slproto::PatternPlanConfig plan;  // the plan the images follow
-  std::vector<std::string> files;   // one per plan pattern, in plan order, resolved paths
-  int bit_depth = 8;                // of the images' values: 8, 10, 12 or 16
+  slproto::PatternPlanConfig plan;          // the plan the images follow
+  std::vector<std::string> files;           // one per plan pattern, in plan order, resolved paths
+  int bit_depth = 8;                        // of the images' values: 8, 10, 12 or 16
   int camera_width = 0, camera_height = 0;  // 0: not stated (taken from the images)
 };
 

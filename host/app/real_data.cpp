@@ -1,0 +1,159 @@
+#include "real_data.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <iomanip>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "slproto/calibration.hpp"
+#include "slscan/io/foreign_calibration.hpp"
+#include "slscan/io/image_sequence_import.hpp"
+
+namespace slscan::app {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+int run_import(const ImportCommand& command, const Console& console) {
+  io::ForeignCalibrationOptions calibration_options;
+  if (command.pose_direction == "proj_from_cam") {
+    calibration_options.pose_direction = io::PoseDirection::proj_from_cam;
+  } else if (command.pose_direction == "cam_from_proj") {
+    calibration_options.pose_direction = io::PoseDirection::cam_from_proj;
+  } else {
+    throw std::invalid_argument("import: --pose-direction must be proj_from_cam or cam_from_proj, got '" +
+                                command.pose_direction + "'");
+  }
+  const io::SequenceDescription description = io::load_sequence_description(command.description_path);
+  calibration_options.projector_width = description.plan.projector_width;
+  calibration_options.projector_height = description.plan.projector_height;
+  calibration_options.camera_width = description.camera_width;
+  calibration_options.camera_height = description.camera_height;
+  slproto::RigCalibration calibration = io::read_foreign_calibration(command.calibration_path, calibration_options);
+  const io::ImportedSequence sequence = io::read_image_sequence(description);
+
+  // The images, the description and the calibration must agree on the geometry.
+  if (sequence.width != calibration.camera.width || sequence.height != calibration.camera.height)
+    throw io::IoError(command.calibration_path + ": the camera is " + std::to_string(calibration.camera.width) + " x " +
+                      std::to_string(calibration.camera.height) + " but the images are " +
+                      std::to_string(sequence.width) + " x " + std::to_string(sequence.height));
+  const auto& projector = calibration.projector(slproto::ProjectorSide::left).intrinsics;
+  if (projector.width != description.plan.projector_width || projector.height != description.plan.projector_height)
+    throw io::IoError(command.calibration_path + ": the projector is " + std::to_string(projector.width) + " x " +
+                      std::to_string(projector.height) + " but the description says " +
+                      std::to_string(description.plan.projector_width) + " x " +
+                      std::to_string(description.plan.projector_height));
+  calibration.pattern_plan = description.plan;
+
+  fs::create_directories(command.output_dir);
+  const std::string capture_path = (fs::path(command.output_dir) / "capture.slcap").string();
+  const std::string calibration_path = (fs::path(command.output_dir) / "calibration.json").string();
+  if (auto status = slproto::save_calibration(calibration_path, calibration); !status)
+    throw io::IoError(calibration_path + ": " + status.error().message);
+  io::write_imported_capture(capture_path, sequence);
+  if (sequence.source_bit_depth == 16)
+    console.warn("16-bit images were reduced to 12 bits (the capture format's deepest pixel format)");
+  console.info("imported " + std::to_string(sequence.frames.size()) + " frames of " + std::to_string(sequence.width) +
+               " x " + std::to_string(sequence.height) + " (" + std::to_string(sequence.bit_depth) + " bit) into " +
+               capture_path + " and " + calibration_path);
+  if (sequence.bit_depth > 8)
+    console.info("reprocess it with a config whose decode.bit_depth is " + std::to_string(sequence.bit_depth));
+  return exit_ok;
+}
+
+core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera) {
+  const io::PlyTable table = io::read_ply_table(path);
+  const auto& x = table.column("x");
+  const auto& y = table.column("y");
+  const auto& z = table.column("z");
+  core::PixelTaggedCloud cloud;
+  cloud.points.resize(table.vertex_count);
+  for (std::size_t i = 0; i < table.vertex_count; ++i)
+    cloud.points[i] = Eigen::Vector3f(static_cast<float>(x[i]), static_cast<float>(y[i]), static_cast<float>(z[i]));
+  if (table.find("u") >= 0 && table.find("v") >= 0) {
+    const auto& u = table.column("u");
+    const auto& v = table.column("v");
+    cloud.u.assign(u.begin(), u.end());
+    cloud.v.assign(v.begin(), v.end());
+  } else if (camera != nullptr) {
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    cloud.u.assign(table.vertex_count, nan);
+    cloud.v.assign(table.vertex_count, nan);
+    for (std::size_t i = 0; i < table.vertex_count; ++i) {
+      double u = 0, v = 0;
+      if (!camera->project({x[i], y[i], z[i]}, u, v)) continue;
+      if (u < -0.5 || v < -0.5 || u > camera->width - 0.5 || v > camera->height - 0.5) continue;
+      cloud.u[i] = static_cast<float>(u);
+      cloud.v[i] = static_cast<float>(v);
+    }
+  }
+  return cloud;
+}
+
+namespace {
+
+json stats_json(const core::DistanceStats& s) {
+  return {{"count", s.count}, {"mean_mm", s.mean}, {"rms_mm", s.rms}, {"median_mm", s.median},
+          {"p90_mm", s.p90},  {"p99_mm", s.p99},   {"max_mm", s.max}};
+}
+
+std::string stats_line(const core::DistanceStats& s) {
+  std::ostringstream out;
+  out << std::fixed << std::setprecision(3) << "median " << s.median << " mm, p90 " << s.p90 << " mm, p99 " << s.p99
+      << " mm, rms " << s.rms << " mm over " << s.count << " points";
+  return out.str();
+}
+
+}  // namespace
+
+int run_compare(const CompareCommand& command, const Console& console) {
+  std::optional<slproto::RigCalibration> calibration;
+  if (!command.calibration_path.empty()) {
+    auto loaded = slproto::load_calibration(command.calibration_path);
+    if (!loaded) throw io::IoError(loaded.error().message);
+    calibration = std::move(loaded).value();
+  }
+  const slproto::PinholeModel* camera = calibration ? &calibration->camera : nullptr;
+  const core::PixelTaggedCloud measured = read_pixel_tagged_ply(command.measured_path, camera);
+  const core::PixelTaggedCloud reference = read_pixel_tagged_ply(command.reference_path, camera);
+  core::CompareOptions options;
+  options.max_distance_mm = command.max_distance_mm;
+  options.surface_neighbors = command.surface_neighbors;
+  const core::CloudComparison c = core::compare_clouds(measured, reference, options);
+
+  json report = {{"measured", {{"file", command.measured_path}, {"points", c.measured_points}}},
+                 {"reference", {{"file", command.reference_path}, {"points", c.reference_points}}},
+                 {"max_distance_mm", command.max_distance_mm},
+                 {"unmatched", c.unmatched},
+                 {"point_to_point", stats_json(c.point_to_point)},
+                 {"point_to_surface", stats_json(c.point_to_surface)}};
+  if (c.per_pixel) {
+    const auto& p = *c.per_pixel;
+    report["per_pixel"] = {{"distance", stats_json(p.distance)},     {"median_signed_z_mm", p.median_signed_z},
+                           {"reference_pixels", p.reference_pixels}, {"measured_pixels", p.measured_pixels},
+                           {"common_pixels", p.common_pixels},       {"coverage", p.coverage}};
+  }
+  if (!command.report_path.empty()) io::write_file_atomically(command.report_path, report.dump(2) + "\n");
+  if (command.json) {
+    std::cout << report.dump(2) << "\n";
+  } else {
+    std::cout << "point to point:   " << stats_line(c.point_to_point) << "\n";
+    std::cout << "point to surface: " << stats_line(c.point_to_surface) << "\n";
+    std::cout << "unmatched: " << c.unmatched << " measured points beyond " << command.max_distance_mm
+              << " mm of the reference\n";
+    if (c.per_pixel) {
+      const auto& p = *c.per_pixel;
+      std::cout << "per pixel:        " << stats_line(p.distance) << "\n";
+      std::cout << std::fixed << std::setprecision(1) << "coverage: " << 100.0 * p.coverage << " % of the "
+                << p.reference_pixels << " reference pixels; median depth difference " << std::setprecision(3)
+                << p.median_signed_z << " mm\n";
+    } else {
+      console.warn("no per-pixel comparison: give both clouds u/v, or --calib to project camera-frame clouds");
+    }
+  }
+  return exit_ok;
+}
+
+}  // namespace slscan::app

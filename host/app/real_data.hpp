@@ -1,0 +1,40 @@
+// Real captures from other scanners: `slscan import` (images + description + foreign
+// calibration -> our capture and calibration files) and `slscan compare` (a reconstruction
+// against a reference cloud). docs/real-data.md has the formats and the figures.
+#pragma once
+
+#include <string>
+
+#include "run.hpp"
+#include "slscan/core/cloud_compare.hpp"
+#include "slscan/io/ply.hpp"
+
+namespace slscan::app {
+
+struct ImportCommand {
+  std::string description_path;  // JSON sequence description (images resolve next to it)
+  std::string calibration_path;  // OpenCV FileStorage (Kc/kc/Kp/kp/Rp/Tp or K1/D1/K2/D2/R/T) or our JSON
+  std::string output_dir;        // gets capture.slcap and calibration.json
+  std::string pose_direction = "proj_from_cam";  // how the file's R, T map points (or "cam_from_proj")
+};
+int run_import(const ImportCommand& command, const Console& console);
+
+struct CompareCommand {
+  std::string measured_path;   // PLY
+  std::string reference_path;  // PLY
+  // Optional calibration (ours, JSON): a camera-frame cloud without u/v properties gets its
+  // pixels by projecting its points into the camera (our views/view_N.ply are such clouds).
+  std::string calibration_path;
+  double max_distance_mm = 5.0;
+  int surface_neighbors = 8;
+  bool json = false;        // print the figures as JSON on stdout
+  std::string report_path;  // also write them as JSON here ("" = no file)
+};
+int run_compare(const CompareCommand& command, const Console& console);
+
+// A PLY file as a cloud with pixels: u/v properties when it has them, else the projection of
+// its points by `camera` when given (points behind the camera or outside the image get no
+// pixel), else none.
+core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera);
+
+}  // namespace slscan::app

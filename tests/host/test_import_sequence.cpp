@@ -1,0 +1,176 @@
+// Importing foreign image sequences and calibrations: descriptions that don't match the
+// images are refused with a message naming the difference; calibrations in OpenCV's
+// K/D/R/T naming read back with the right pose direction.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "slproto/capture.hpp"
+#include "slscan/io/capture_replay.hpp"
+#include "slscan/io/foreign_calibration.hpp"
+#include "slscan/io/image_sequence_import.hpp"
+#include "slscan/io/ply.hpp"
+
+namespace fs = std::filesystem;
+using namespace slscan;
+
+namespace {
+
+class Import : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("slscan_import_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(dir_);
+    // A 64-column projector, Gray code with 2 low bits left out: period 4, 16 periods, 4 bits.
+    for (int i = 0; i < 6; ++i) write_image("f" + std::to_string(i) + ".png", 40, 30, CV_8U, 10 * i);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  void write_image(const std::string& name, int w, int h, int type, int value) {
+    cv::imwrite((dir_ / name).string(), cv::Mat(h, w, type, cv::Scalar(value)));
+  }
+  std::string describe(const std::string& extra = "", const std::string& gray_count = "4") {
+    return R"({"projector": {"width": 64, "height": 32}, "white": "f0.png", "black": "f1.png",
+               "gray": {"files": {"pattern": "f%d.png", "first": 2, "count": )" +
+           gray_count + R"(}, "bits_not_projected": 2})" + extra + "}";
+  }
+  std::string error_of(const std::string& description) {
+    try {
+      io::read_image_sequence(io::parse_sequence_description(description, dir_.string()));
+    } catch (const io::IoError& e) {
+      return e.what();
+    }
+    return "";
+  }
+  fs::path dir_;
+};
+
+TEST_F(Import, GrayWithoutLowBitsIsOurPlanWithALargerPeriod) {
+  const io::SequenceDescription d = io::parse_sequence_description(describe(), dir_.string());
+  EXPECT_EQ(d.plan.period_px, 4);
+  EXPECT_EQ(d.plan.phase_steps, 0);
+  EXPECT_FALSE(d.plan.complementary_bit);
+  EXPECT_EQ(d.plan.gray_bits(), 4);
+  ASSERT_EQ(d.files.size(), 6u);
+  EXPECT_EQ(fs::path(d.files[2]).filename(), "f2.png");
+  // The top bits of gray(x) are gray(x >> s): the plan's Gray frames are the full code's.
+  const slproto::PatternPlan plan(d.plan);
+  for (int x = 0; x < 64; ++x)
+    for (int bit = 0; bit < 4; ++bit) {
+      const float full_code_bit =
+          static_cast<float>((slproto::binary_to_gray(static_cast<std::uint32_t>(x)) >> (5 - bit)) & 1u);
+      EXPECT_EQ(plan.value(static_cast<std::size_t>(plan.index_of(slproto::PatternKind::gray_bit, bit)), x),
+                full_code_bit)
+          << "x " << x << " bit " << bit;
+    }
+  // LSB first reverses the list.
+  const auto reversed = io::parse_sequence_description(
+      R"({"projector": {"width": 64, "height": 32}, "white": "f0.png", "black": "f1.png",
+          "gray": {"files": ["f2.png", "f3.png", "f4.png", "f5.png"], "bit_order": "lsb_first", "bits_not_projected": 2}})",
+      dir_.string());
+  EXPECT_EQ(fs::path(reversed.files[2]).filename(), "f5.png");
+}
+
+TEST_F(Import, MismatchesAreNamed) {
+  EXPECT_NE(error_of(describe("", "3")).find("lists 3 frames but a Gray code of 64 projector columns"),
+            std::string::npos)
+      << error_of(describe("", "3"));
+  write_image("f4.png", 41, 30, CV_8U, 0);
+  EXPECT_NE(error_of(describe()).find("f4.png (gray_bit 2): the image is 41 x 30, the first image is 40 x 30"),
+            std::string::npos)
+      << error_of(describe());
+  write_image("f4.png", 40, 30, CV_16U, 0);
+  EXPECT_NE(error_of(describe()).find("the image is 16-bit, the description says camera.bit_depth 8"),
+            std::string::npos)
+      << error_of(describe());
+  write_image("f4.png", 40, 30, CV_8U, 0);
+  const std::string sized = R"(, "camera": {"width": 48, "height": 30})";
+  EXPECT_NE(error_of(describe(sized)).find("the image is 40 x 30, the description says 48 x 30"), std::string::npos)
+      << error_of(describe(sized));
+  fs::remove(dir_ / "f5.png");
+  EXPECT_NE(error_of(describe()).find("f5.png (gray_bit 3): no such image file"), std::string::npos)
+      << error_of(describe());
+  EXPECT_NE(error_of(R"({"projector": {"width": 64, "height": 32}, "white": "f0.png", "black": "f1.png",
+      "gray": {"files": ["f2.png"]}, "inverse": ["f3.png"]})")
+                .find("inverse"),
+            std::string::npos);
+  EXPECT_NE(error_of(R"({"projector": {"width": 64, "height": 32}, "white": "f0.png",
+      "gray": {"files": ["f2.png"], "bits_not_projected": 5}})")
+                .find("white and black frames come as a pair"),
+            std::string::npos);
+}
+
+TEST_F(Import, WritesACaptureThatReplaysInPlanOrder) {
+  const auto sequence = io::read_image_sequence(io::parse_sequence_description(describe(), dir_.string()));
+  io::write_imported_capture((dir_ / "c.slcap").string(), sequence);
+  std::vector<std::uint32_t> indices;
+  std::vector<int> first_pixel;
+  const auto summary =
+      io::replay_capture((dir_ / "c.slcap").string(),
+                         [&](const slproto::pb::ScanRequest& request) {
+                           EXPECT_EQ(io::plan_of(request).config(), sequence.plan.config());
+                         },
+                         [&](const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
+                           EXPECT_EQ(header.width(), 40u);
+                           EXPECT_EQ(header.projector_id(), 0u);
+                           indices.push_back(header.pattern_index());
+                           first_pixel.push_back(static_cast<int>(payload[0]));
+                         });
+  EXPECT_TRUE(summary.done.has_value());
+  EXPECT_EQ(indices, (std::vector<std::uint32_t>{0, 1, 2, 3, 4, 5}));
+  EXPECT_EQ(first_pixel, (std::vector<int>{0, 10, 20, 30, 40, 50}));
+}
+
+TEST_F(Import, OpenCvStereoNamingAndPoseDirection) {
+  const std::string path = (dir_ / "stereo.yml").string();
+  cv::Mat rvec = (cv::Mat_<double>(3, 1) << 0.0, 0.3, 0.0);
+  {
+    cv::FileStorage fs(path, cv::FileStorage::WRITE);
+    fs << "K1" << (cv::Mat_<double>(3, 3) << 1000, 0, 320, 0, 1001, 240, 0, 0, 1);
+    fs << "D1" << (cv::Mat_<double>(1, 5) << -0.1, 0.01, 0, 0, 0);
+    fs << "K2" << (cv::Mat_<double>(3, 3) << 1200, 0, 400, 0, 1200, 300, 0, 0, 1);
+    fs << "D2" << (cv::Mat_<double>(1, 4) << 0.05, 0, 0, 0);
+    fs << "R" << rvec;
+    fs << "T" << (cv::Mat_<double>(3, 1) << -100, 0, 10);
+  }
+  io::ForeignCalibrationOptions options;
+  options.camera_width = 640;
+  options.camera_height = 480;
+  options.projector_width = 800;
+  options.projector_height = 600;
+  const auto rig = io::read_foreign_calibration(path, options);
+  EXPECT_EQ(rig.camera.fy, 1001);
+  EXPECT_EQ(rig.camera.distortion.k1, -0.1);
+  EXPECT_EQ(rig.projectors[0].intrinsics.distortion.k1, 0.05);
+  // proj_from_cam T = (-100, 0, 10): the projector centre in the camera frame is -R^T T.
+  const auto proj_from_cam = rig.projectors[0].cam_from_proj.inverse();
+  EXPECT_NEAR(proj_from_cam.t[0], -100, 1e-9);
+  EXPECT_NEAR(proj_from_cam.R[2], std::sin(0.3), 1e-9);
+  EXPECT_EQ(rig.projectors[1], rig.projectors[0]) << "a one-projector rig fills both slots";
+  options.pose_direction = io::PoseDirection::cam_from_proj;
+  EXPECT_NEAR(io::read_foreign_calibration(path, options).projectors[0].cam_from_proj.t[0], -100, 1e-9);
+
+  options.camera_width = 0;
+  try {
+    io::read_foreign_calibration(path, options);
+    ADD_FAILURE() << "no camera width anywhere";
+  } catch (const io::IoError& e) {
+    EXPECT_NE(std::string(e.what()).find("does not give the camera width"), std::string::npos) << e.what();
+  }
+  {
+    cv::FileStorage fs(path, cv::FileStorage::WRITE);
+    fs << "K1" << (cv::Mat_<double>(3, 3) << 1000, 0, 320, 0, 1001, 240, 0, 0, 1);
+  }
+  try {
+    io::read_foreign_calibration(path, options);
+    ADD_FAILURE() << "no distortion";
+  } catch (const io::IoError& e) {
+    EXPECT_NE(std::string(e.what()).find("no kc or D1"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
