@@ -11,7 +11,6 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <regex>
 #include <sstream>
 #include <thread>
 
@@ -41,10 +40,22 @@ std::string demo_board(const std::string& template_path, const std::string& scen
   std::stringstream text;
   text << in.rdbuf();
   std::string board = text.str();
+  // Sets `key = value` on the first line that assigns `key` (plain TOML, one key per line).
   const auto replace = [&](const std::string& key, const std::string& value) {
-    const std::regex line("(^|\n)" + key + "\\s*=[^\n]*");
-    if (!std::regex_search(board, line)) throw io::IoError(template_path + ": has no '" + key + "' line to set");
-    board = std::regex_replace(board, line, "$1" + key + " = " + value, std::regex_constants::format_first_only);
+    std::size_t at = 0;
+    while (at < board.size()) {
+      const std::size_t end = std::min(board.find('\n', at), board.size());
+      const std::string_view line(board.data() + at, end - at);
+      if (line.substr(0, key.size()) == key) {
+        const std::size_t rest = line.find_first_not_of(" \t", key.size());
+        if (rest != std::string_view::npos && line[rest] == '=') {
+          board.replace(at, end - at, key + " = " + value);
+          return;
+        }
+      }
+      at = end + 1;
+    }
+    throw io::IoError(template_path + ": has no '" + key + "' line to set");
   };
   replace("scene", "\"" + scene + "\"");
   replace("rig_size", small ? "\"small\"" : "\"full\"");
