@@ -34,7 +34,7 @@ fs::path executable_dir() {
 }
 
 // The board file of the demo: the sim board with the demo's scene and size.
-std::string demo_board(const std::string& template_path, const std::string& scene, bool small) {
+std::string demo_board(const std::string& template_path, const std::string& scene, bool small, int width, int height) {
   std::ifstream in(template_path);
   if (!in) throw io::IoError(template_path + ": cannot read the sim board file");
   std::stringstream text;
@@ -59,6 +59,10 @@ std::string demo_board(const std::string& template_path, const std::string& scen
   };
   replace("scene", "\"" + scene + "\"");
   replace("rig_size", small ? "\"small\"" : "\"full\"");
+  // The board's camera format must be what the rig renders ([camera] is the only section
+  // with these keys).
+  replace("width", std::to_string(width));
+  replace("height", std::to_string(height));
   return board;
 }
 
@@ -158,7 +162,8 @@ int run_demo(const DemoCommand& command, const Console& console) {
   console.info("calibration: the virtual rig's ground truth -> " + calibration_path);
 
   const std::string board_path = (out / "board.toml").string();
-  io::write_file_atomically(board_path, demo_board(board_template, command.scene, command.small));
+  io::write_file_atomically(
+      board_path, demo_board(board_template, command.scene, command.small, scene->camera.width, scene->camera.height));
   console.info("starting slscand on the sim board (scene '" + command.scene + "', " +
                (command.small ? "640 x 512" : "2464 x 2056") + ")");
   Daemon daemon(slscand, board_path, (out / "slscand.log").string());
