@@ -54,6 +54,8 @@ void BM_Frame(benchmark::State& state, bool noise) {
 
 BENCHMARK_CAPTURE(BM_FullView, ballbar, "ballbar")->Unit(benchmark::kMillisecond)->Iterations(3)->UseRealTime();
 BENCHMARK_CAPTURE(BM_FullView, blade, "blade")->Unit(benchmark::kMillisecond)->Iterations(2)->UseRealTime();
+// The checkerboard: the only textured surface, so the only scene paying for pixel-area albedo.
+BENCHMARK_CAPTURE(BM_FullView, calibration, "calibration")->Unit(benchmark::kMillisecond)->Iterations(2)->UseRealTime();
 BENCHMARK_CAPTURE(BM_CastView, ballbar, "ballbar")->Unit(benchmark::kMillisecond)->Iterations(3)->UseRealTime();
 BENCHMARK_CAPTURE(BM_CastView, teacup, "teacup")->Unit(benchmark::kMillisecond)->Iterations(2)->UseRealTime();
 BENCHMARK_CAPTURE(BM_Frame, noise, true)->Unit(benchmark::kMillisecond)->UseRealTime();

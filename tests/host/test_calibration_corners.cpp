@@ -67,7 +67,7 @@ TEST(CalibrationCorners, FindsEveryCornerToATenthOfAPixel) {
       backward += (found.view.corners[static_cast<std::size_t>(i)].pixel - board.pixel(n - 1 - i)).squaredNorm();
     }
     const double rms = std::sqrt(std::min(forward, backward) / n);
-    EXPECT_LT(rms, 0.1) << (sector_based ? "sector based" : "classic");
+    EXPECT_LT(rms, 0.1) << (sector_based ? "sector based only" : "sector based, classic fallback");
   }
 }
 

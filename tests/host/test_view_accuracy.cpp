@@ -29,16 +29,15 @@
 #include <vector>
 
 #include "slrig/rig.hpp"
-#include "slscan/core/view_pipeline.hpp"
+#include "slscan/core/scan_reconstruction.hpp"
 
 namespace {
 
 using slproto::ProjectorSide;
 using slscan::core::DecodeMask;
 using slscan::core::OrganizedCloud;
-using slscan::core::ViewPipeline;
-using slscan::core::ViewPipelineOptions;
-using slscan::core::ViewResult;
+using slscan::core::ReconstructionOptions;
+using slscan::core::ScanReconstructor;
 
 struct ErrorStats {
   std::size_t points = 0, beyond_0_2mm = 0, without_truth = 0;
@@ -76,6 +75,14 @@ ErrorStats error_stats(const OrganizedCloud& cloud, const slrig::ViewGroundTruth
   return stats;
 }
 
+// What one view leaves, as the scan's reconstruction produces it.
+struct ViewResult {
+  std::array<OrganizedCloud, 2> per_projector;  // after flying-pixel removal, before fusion
+  OrganizedCloud cloud;                         // fused (and denoised unless turned off)
+  slscan::core::FusionCounts fusion;
+  slscan::core::TurntableDenoiseCounts turntable;
+};
+
 struct ViewRun {
   slrig::Scene scene;
   slproto::RigCalibration calibration;
@@ -84,7 +91,9 @@ struct ViewRun {
   std::array<std::vector<DecodeMask>, 2> masks;
 };
 
-ViewRun run_view(const std::string& preset, int view_index, ViewPipelineOptions options = {}) {
+// One view through ScanReconstructor (the code path of a scan), registration and the
+// model's cleanup off: stages 1-4 only.
+ViewRun run_view(const std::string& preset, int view_index, ReconstructionOptions options = {}) {
   ViewRun run;
   auto scene = slrig::scene_preset(preset, slrig::RigSize::small);
   if (!scene) throw std::runtime_error(scene.error().message);
@@ -93,31 +102,44 @@ ViewRun run_view(const std::string& preset, int view_index, ViewPipelineOptions 
   const double angle = run.scene.view_angles_deg.at(static_cast<std::size_t>(view_index));
   run.renderer = std::make_unique<slrig::ViewRenderer>(run.scene, angle, view_index);
   options.decode.bit_depth = run.scene.sensor.bit_depth;
-  ViewPipeline pipeline(run.calibration, options);
-  const slproto::PatternPlan& plan = pipeline.plan();
+  options.register_views = false;
+  options.remove_outliers = false;
+  options.build_mesh = false;
+  options.keep_projector_clouds = true;
+  const slproto::PatternPlan plan(run.calibration.pattern_plan);
+  const int width = run.renderer->width(), height = run.renderer->height();
+  ScanReconstructor reconstructor(run.calibration, plan, width, height, options);
   std::vector<std::uint8_t> frame(run.renderer->frame_bytes());
-  const auto width = static_cast<std::size_t>(run.renderer->width());
+  const int bytes_per_pixel = run.scene.sensor.bit_depth > 8 ? 2 : 1;
   for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right}) {
     for (std::size_t p = 0; p < plan.size(); ++p) {
       run.renderer->render(side, p, frame);
-      if (run.scene.sensor.bit_depth > 8) {
-        pipeline.add_frame(side, p, reinterpret_cast<const std::uint16_t*>(frame.data()), width);
-      } else {
-        pipeline.add_frame(side, p, frame.data(), width);
-      }
+      slscan::core::FrameInfo info;
+      info.view_index = view_index;
+      info.commanded_angle_deg = info.reported_angle_deg = angle;
+      info.projector = static_cast<int>(side);
+      info.pattern_index = p;
+      info.bytes_per_pixel = bytes_per_pixel;
+      info.stride_bytes = static_cast<std::size_t>(width * bytes_per_pixel);
+      reconstructor.add_frame(info, std::as_bytes(std::span(frame)));
     }
-    pipeline.finish_projector(side);
   }
-  run.result = pipeline.finish_view();
+  slscan::core::ScanResult scan = reconstructor.finish();
+  if (scan.view_products.size() != 1) throw std::runtime_error("the view was not reconstructed");
+  auto& products = scan.view_products.front();
+  run.result.per_projector = std::move(products.projector_clouds);
+  run.result.cloud = std::move(products.cloud);
+  run.result.fusion = scan.views.front().fusion;
+  run.result.turntable = scan.views.front().turntable_denoise;
   // The decoder's masks, for the coverage count: decode the frames once more, standalone.
   for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right}) {
     slscan::core::ProjectorViewDecoder decoder(plan, run.renderer->width(), run.renderer->height(), options.decode);
     for (std::size_t p = 0; p < plan.size(); ++p) {
       run.renderer->render(side, p, frame);
       if (run.scene.sensor.bit_depth > 8) {
-        decoder.add_frame(p, reinterpret_cast<const std::uint16_t*>(frame.data()), width);
+        decoder.add_frame(p, reinterpret_cast<const std::uint16_t*>(frame.data()), static_cast<std::size_t>(width));
       } else {
-        decoder.add_frame(p, frame.data(), width);
+        decoder.add_frame(p, frame.data(), static_cast<std::size_t>(width));
       }
     }
     run.masks[static_cast<std::size_t>(side)] = decoder.finish().mask;
@@ -189,7 +211,7 @@ std::size_t points_in_true_shadow(const OrganizedCloud& cloud, const slrig::View
 
 void check_view(const std::string& preset, int view_index) {
   SCOPED_TRACE(preset + " view " + std::to_string(view_index));
-  ViewPipelineOptions options;
+  ReconstructionOptions options;
   options.denoise_turntable = false;  // accuracy of everything the camera sees, table included
   const ViewRun run = run_view(preset, view_index, options);
   const auto& truth = run.renderer->ground_truth();

@@ -2,6 +2,7 @@
 // a linear scan finds, for the procedural meshes the presets use.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 
 #include "geometry.hpp"
@@ -127,6 +128,73 @@ TEST(Geometry, CylinderAndBoxHitsAreExact) {
   EXPECT_NEAR(hit.normal.z, -1, 1e-12);
   EXPECT_TRUE(world.occluded({50, 0, 0}, {0, 0, 1}, 0, 201));
   EXPECT_FALSE(world.occluded({50, 0, 0}, {0, 0, 1}, 0, 199));
+}
+
+// A camera pixel's albedo is the box-filtered checkerboard over its footprint: the exact
+// clipping in footprint_albedo against a dense grid of albedo_at samples over the same
+// quadrilateral (parallelograms, so the grid is uniform in area), on a tilted board.
+TEST(Geometry, FootprintAlbedoIsTheMeanOverThePixel) {
+  World world;
+  Primitive board;
+  board.kind = PrimitiveKind::box;
+  board.lo = {-15, -15, 0};
+  board.hi = {45, 35, 3};
+  board.material.checker = true;
+  board.material.square = 10;
+  board.material.squares_x = 6;
+  board.material.squares_y = 5;
+  board.material.albedo = 0.8;
+  board.material.dark_albedo = 0.05;
+  const double c = std::cos(0.5), s = std::sin(0.5);  // tilted 29 deg about x
+  board.cam_from_local.R[4] = c;
+  board.cam_from_local.R[5] = -s;
+  board.cam_from_local.R[7] = s;
+  board.cam_from_local.R[8] = c;
+  board.cam_from_local.t = {-10, -5, 300};
+  world.primitives = {board};
+  for (Primitive& p : world.primitives) compute_bounds(p);
+
+  std::uint64_t h = 777;
+  auto uniform = [&] {
+    h = mix64(h);
+    return static_cast<double>(h >> 11) / 9007199254740992.0;
+  };
+  int mixed = 0;
+  for (int trial = 0; trial < 150; ++trial) {
+    // A parallelogram about 0.5 .. 3 mm across, anywhere on the print and around it.
+    const V3 centre{-20 + 70 * uniform(), -20 + 60 * uniform(), 0};
+    const V3 e1{0.5 + 2.5 * uniform(), 1.5 * (uniform() - 0.5), 0};
+    const V3 e2{1.5 * (uniform() - 0.5), 0.5 + 2.5 * uniform(), 0};
+    const std::array<V3, 4> local{centre - 0.5 * e1 - 0.5 * e2, centre + 0.5 * e1 - 0.5 * e2,
+                                  centre + 0.5 * e1 + 0.5 * e2, centre - 0.5 * e1 + 0.5 * e2};
+    std::array<V3, 4> directions;
+    for (std::size_t k = 0; k < 4; ++k) directions[k] = board.cam_from_local.apply(local[k]);
+    Hit hit;
+    const V3 centre_cam = board.cam_from_local.apply(centre);
+    // Off the plate, or on its edge: no printed face there.
+    if (!world.intersect({0, 0, 0}, centre_cam, 0, 1e9, hit) || std::abs(hit.local.z) > 1e-6) continue;
+    const double exact = world.footprint_albedo(hit, {0, 0, 0}, directions);
+    constexpr int kGrid = 200;
+    double sum = 0;
+    int dark = 0;
+    Hit sample = hit;
+    for (int i = 0; i < kGrid; ++i)
+      for (int j = 0; j < kGrid; ++j) {
+        const double a = (i + 0.5) / kGrid - 0.5, b = (j + 0.5) / kGrid - 0.5;
+        sample.local = centre + a * e1 + b * e2;
+        sample.local.z = 0;
+        const double albedo = world.albedo_at(sample);
+        sum += albedo;
+        dark += albedo == board.material.dark_albedo ? 1 : 0;
+      }
+    const double brute = sum / (kGrid * kGrid);
+    EXPECT_NEAR(exact, brute, 2e-3) << "trial " << trial;
+    if (dark > 0 && dark < kGrid * kGrid)
+      ++mixed;
+    else
+      EXPECT_EQ(exact, world.albedo_at(hit)) << "a footprint inside one square is that square's albedo";
+  }
+  EXPECT_GT(mixed, 20) << "too few footprints straddled an edge to test anything";
 }
 
 }  // namespace

@@ -400,4 +400,90 @@ double World::albedo_at(const Hit& hit) const {
   return (parity % 2 == 0) ? m.dark_albedo : m.albedo;
 }
 
+namespace {
+
+struct P2 {
+  double x, y;
+};
+
+// Sutherland-Hodgman clip of a convex polygon against one half-plane (keep where
+// sign * (coordinate `axis` - bound) <= 0); at most 8 vertices (a quadrilateral cut by 4 lines).
+int clip_half_plane(const P2* in, int n, P2* out, int axis, double bound, double sign) {
+  int m = 0;
+  for (int i = 0; i < n; ++i) {
+    const P2& a = in[i];
+    const P2& b = in[(i + 1) % n];
+    const double da = sign * ((axis == 0 ? a.x : a.y) - bound);
+    const double db = sign * ((axis == 0 ? b.x : b.y) - bound);
+    if (da <= 0) out[m++] = a;
+    if ((da < 0 && db > 0) || (da > 0 && db < 0)) {
+      const double s = da / (da - db);
+      out[m++] = {a.x + s * (b.x - a.x), a.y + s * (b.y - a.y)};
+    }
+  }
+  return m;
+}
+
+double polygon_area(const P2* p, int n) {
+  double twice = 0;
+  for (int i = 0; i < n; ++i) {
+    const P2& a = p[i];
+    const P2& b = p[(i + 1) % n];
+    twice += a.x * b.y - b.x * a.y;
+  }
+  return std::abs(twice) / 2;
+}
+
+// Area of a convex quadrilateral inside the rectangle [x0, x1] x [y0, y1].
+double clipped_area(const std::array<P2, 4>& quad, double x0, double x1, double y0, double y1) {
+  P2 a[12], b[12];
+  int n = clip_half_plane(quad.data(), 4, a, 0, x0, -1);
+  n = clip_half_plane(a, n, b, 0, x1, 1);
+  n = clip_half_plane(b, n, a, 1, y0, -1);
+  n = clip_half_plane(a, n, b, 1, y1, 1);
+  return n >= 3 ? polygon_area(b, n) : 0.0;
+}
+
+}  // namespace
+
+double World::footprint_albedo(const Hit& hit, V3 origin, const std::array<V3, 4>& corner_directions) const {
+  const Primitive& p = primitives[static_cast<std::size_t>(hit.primitive)];
+  const Material& m = p.material;
+  const double centre = albedo_at(hit);
+  if (!m.checker || std::abs(hit.local.z - p.lo.z) > 1e-9 * (1 + std::abs(p.lo.z))) return centre;
+  // The footprint on the printed face's plane, in the board's frame.
+  const V3 o = p.cam_from_local.apply_inv(origin);
+  std::array<P2, 4> quad{};
+  double lo_x = std::numeric_limits<double>::infinity(), lo_y = lo_x, hi_x = -lo_x, hi_y = -lo_x;
+  for (std::size_t k = 0; k < 4; ++k) {
+    const V3 d = p.cam_from_local.rotate_inv(corner_directions[k]);
+    if (std::abs(d.z) < 1e-12) return centre;  // grazing: the footprint is unbounded
+    const double t = (p.lo.z - o.z) / d.z;
+    if (!(t > 0)) return centre;
+    quad[k] = {o.x + t * d.x, o.y + t * d.y};
+    lo_x = std::min(lo_x, quad[k].x);
+    hi_x = std::max(hi_x, quad[k].x);
+    lo_y = std::min(lo_y, quad[k].y);
+    hi_y = std::max(hi_y, quad[k].y);
+  }
+  const double s = m.square;
+  // Squares span i = -1 .. squares_x - 2 (as in albedo_at); only the dark ones need clipping.
+  const double i0 = std::max(std::floor(lo_x / s), -1.0), i1 = std::min(std::floor(hi_x / s), m.squares_x - 2.0);
+  const double j0 = std::max(std::floor(lo_y / s), -1.0), j1 = std::min(std::floor(hi_y / s), m.squares_y - 2.0);
+  // Inside one square (most pixels) or off the printed squares: nothing to integrate.
+  if (std::floor(lo_x / s) == std::floor(hi_x / s) && std::floor(lo_y / s) == std::floor(hi_y / s)) return centre;
+  if (i0 > i1 || j0 > j1) return centre;
+  const double total = polygon_area(quad.data(), 4);
+  if (!(total > 0)) return centre;
+  double dark = 0;
+  for (double i = i0; i <= i1; ++i)
+    for (double j = j0; j <= j1; ++j) {
+      const auto parity = static_cast<long long>(i) + static_cast<long long>(j);
+      if (parity % 2 != 0) continue;
+      dark += clipped_area(quad, i * s, (i + 1) * s, j * s, (j + 1) * s);
+    }
+  const double fraction = std::clamp(dark / total, 0.0, 1.0);
+  return m.albedo + fraction * (m.dark_albedo - m.albedo);
+}
+
 }  // namespace slrig::detail

@@ -2,6 +2,7 @@
 // double precision (ground truth must be exact to well below a micrometre).
 #pragma once
 
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -137,6 +138,12 @@ class World {
   // Any hit in (t_min, t_max), ignoring primitive `skip` (-1: none).
   bool occluded(V3 origin, V3 direction, double t_min, double t_max, int skip = -1) const;
   double albedo_at(const Hit& hit) const;
+  // The mean albedo over a camera pixel's footprint: the quadrilateral where the rays from
+  // `origin` along `corner_directions` (through the pixel's four corners, in order around it)
+  // meet the plane of the hit's textured face; a box filter, as a sensor pixel integrates
+  // light over its area. Exact for the checkerboard (the quadrilateral is clipped against each
+  // dark square); untextured surfaces and degenerate footprints return albedo_at(hit).
+  double footprint_albedo(const Hit& hit, V3 origin, const std::array<V3, 4>& corner_directions) const;
 };
 
 }  // namespace slrig::detail

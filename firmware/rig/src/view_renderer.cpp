@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <limits>
@@ -207,7 +208,25 @@ void ViewRenderer::Impl::shade(const Scene& scene, const detail::World& world) {
         const V3 view = detail::normalized(-dir);
         V3 normal = detail::normalized(hit.normal);
         if (detail::dot(normal, view) < 0) normal = -normal;
-        const double albedo = world.albedo_at(hit);
+        // A sensor pixel integrates light over its area: where a texture edge (the
+        // checkerboard's squares) crosses the pixel, the albedo is the footprint's mean, so
+        // edges are anti-aliased. Only textured surfaces pay for the corner rays; the
+        // projector's pattern and the geometry are still sampled at the pixel centre.
+        double albedo;
+        if (prim.material.checker) {
+          std::array<V3, 4> corners;
+          constexpr double kCorner[4][2] = {{-0.5, -0.5}, {0.5, -0.5}, {0.5, 0.5}, {-0.5, 0.5}};
+          bool solved = true;
+          for (std::size_t k = 0; k < 4 && solved; ++k) {
+            double xc = x, yc = y;
+            solved =
+                undistorter.solve((u + kCorner[k][0] - cam.cx) / cam.fx, (v + kCorner[k][1] - cam.cy) / cam.fy, xc, yc);
+            corners[k] = {xc, yc, 1.0};
+          }
+          albedo = solved ? world.footprint_albedo(hit, {0, 0, 0}, corners) : world.albedo_at(hit);
+        } else {
+          albedo = world.albedo_at(hit);
+        }
         truth.points[3 * i] = static_cast<float>(p.x);
         truth.points[3 * i + 1] = static_cast<float>(p.y);
         truth.points[3 * i + 2] = static_cast<float>(p.z);

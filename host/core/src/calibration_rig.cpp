@@ -82,7 +82,8 @@ std::vector<PoseFrames> index_frames(const CalibrationCapture& capture,
 }
 
 // What the corner detector looks at: the camera image if there is one, else the sum of the
-// projectors' white frames (the board lit from both sides, so neither casts a dark side).
+// projectors' white frames (the board lit from both sides, so neither casts a dark side), of
+// both axes when there are both (four frames: half the noise variance of two).
 cv::Mat detection_image(const PoseFrames& frames, const std::array<slproto::PatternPlan, 2>& plans) {
   if (frames.camera != nullptr) return *frames.camera;
   cv::Mat sum;
@@ -95,8 +96,7 @@ cv::Mat detection_image(const PoseFrames& frames, const std::array<slproto::Patt
       if (sum.empty()) sum = cv::Mat::zeros(image->size(), CV_32F);
       cv::Mat f;
       image->convertTo(f, CV_32F);
-      sum += f;
-      break;  // one white frame per projector
+      sum += f;  // every white frame: both projectors, both axes (less noise)
     }
   if (sum.empty()) return {};
   double hi = 0;

@@ -6,6 +6,7 @@
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <memory>
 #include <numbers>
 #include <random>
@@ -58,22 +59,45 @@ struct Correspondence {
 class JointIcp {
  public:
   JointIcp(std::vector<ViewData>& views, std::vector<Eigen::Isometry3d>& poses, std::vector<bool> fixed,
-           std::vector<std::pair<int, int>> directed_pairs, const IcpOptions& options)
-      : views_(views), poses_(poses), fixed_(std::move(fixed)), pairs_(std::move(directed_pairs)), options_(options) {}
+           std::vector<std::pair<int, int>> directed_pairs, const IcpOptions& options, double prior_deg = 0,
+           double prior_mm = 0)
+      : views_(views),
+        poses_(poses),
+        prior_poses_(poses),
+        fixed_(std::move(fixed)),
+        pairs_(std::move(directed_pairs)),
+        options_(options),
+        prior_rad_(prior_deg / kDegPerRad),
+        prior_mm_(prior_mm) {}
 
   int run() {
     int iterations = 0;
-    for (double gate : options_.gates_mm) {
+    for (std::size_t stage = 0; stage < options_.gates_mm.size(); ++stage) {
+      const bool last = stage + 1 == options_.gates_mm.size();
+      const std::size_t sources = last || options_.early_stage_points_per_view == 0
+                                      ? options_.source_points_per_view
+                                      : options_.early_stage_points_per_view;
+      // An early stage only has to bring the views well inside the next, narrower gate: 1 % of
+      // it, and the rotation that moves a point 100 mm from the axis as much. Asking it for the
+      // final tolerance lets it spend its iterations on the jitter of its wide gate.
+      double tolerance_mm = options_.converged_translation_mm, tolerance_deg = options_.converged_rotation_deg;
+      if (!last) {
+        tolerance_mm = std::max(tolerance_mm, 0.01 * options_.gates_mm[stage + 1]);
+        tolerance_deg = std::max(tolerance_deg, tolerance_mm / 100.0 * kDegPerRad);
+      }
       for (int it = 0; it < options_.max_iterations_per_stage; ++it) {
         ++iterations;
-        if (step(gate)) break;
+        if (step(options_.gates_mm[stage], sources, tolerance_deg, tolerance_mm)) break;
       }
     }
     return iterations;
   }
 
   // Correspondences of one directed pair at the current poses.
-  std::vector<Correspondence> correspondences(int source, int target, double gate) const {
+  // At most `max_sources` of the source's samples, evenly strided (the samples are in Morton
+  // order, so a stride keeps them spread over the whole view).
+  std::vector<Correspondence> correspondences(int source, int target, double gate,
+                                              std::size_t max_sources = SIZE_MAX) const {
     const ViewData& s = views_[static_cast<std::size_t>(source)];
     const ViewData& t = views_[static_cast<std::size_t>(target)];
     const Eigen::Isometry3d& Ts = poses_[static_cast<std::size_t>(source)];
@@ -83,29 +107,30 @@ class JointIcp {
     const Eigen::Vector3f tr = target_from_source.translation().cast<float>();
     const auto cos_max = static_cast<float>(std::cos(options_.max_normal_angle_deg / kDegPerRad));
     const auto gatef = static_cast<float>(gate);
-    std::vector<Correspondence> found(s.samples.size());
-    std::vector<std::uint8_t> ok(s.samples.size(), 0);
-    tbb::parallel_for(
-        tbb::blocked_range<std::size_t>(0, s.samples.size(), 512), [&](const tbb::blocked_range<std::size_t>& r) {
-          for (std::size_t k = r.begin(); k < r.end(); ++k) {
-            const std::uint32_t i = s.samples[k];
-            const Eigen::Vector3f x = R * s.cloud->points[i] + tr;
-            float d2 = 0;
-            const std::int64_t j = t.tree->nearest_within(x, gatef, d2);
-            if (j < 0) continue;
-            const Eigen::Vector3f& nq = t.cloud->normals[static_cast<std::size_t>(j)];
-            if ((R * s.cloud->normals[i]).dot(nq) < cos_max) continue;
-            Correspondence c;
-            c.a = Ts * s.cloud->points[i].cast<double>();
-            c.b = Tt * t.cloud->points[static_cast<std::size_t>(j)].cast<double>();
-            // Symmetric point-to-plane (Rusinkiewicz 2019): the sum of both normals cancels, to first
-            // order, the bias a curved surface gives the one-sided residual at sparse sampling.
-            c.m = (Tt.linear() * nq.cast<double>() + Ts.linear() * s.cloud->normals[i].cast<double>()).normalized();
-            c.r = c.m.dot(c.a - c.b);
-            found[k] = c;
-            ok[k] = 1;
-          }
-        });
+    const std::size_t stride = std::max<std::size_t>(1, (s.samples.size() + max_sources - 1) / max_sources);
+    const std::size_t count = (s.samples.size() + stride - 1) / stride;
+    std::vector<Correspondence> found(count);
+    std::vector<std::uint8_t> ok(count, 0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 512), [&](const tbb::blocked_range<std::size_t>& r) {
+      for (std::size_t k = r.begin(); k < r.end(); ++k) {
+        const std::uint32_t i = s.samples[k * stride];
+        const Eigen::Vector3f x = R * s.cloud->points[i] + tr;
+        float d2 = 0;
+        const std::int64_t j = t.tree->nearest_within(x, gatef, d2);
+        if (j < 0) continue;
+        const Eigen::Vector3f& nq = t.cloud->normals[static_cast<std::size_t>(j)];
+        if ((R * s.cloud->normals[i]).dot(nq) < cos_max) continue;
+        Correspondence c;
+        c.a = Ts * s.cloud->points[i].cast<double>();
+        c.b = Tt * t.cloud->points[static_cast<std::size_t>(j)].cast<double>();
+        // Symmetric point-to-plane (Rusinkiewicz 2019): the sum of both normals cancels, to first
+        // order, the bias a curved surface gives the one-sided residual at sparse sampling.
+        c.m = (Tt.linear() * nq.cast<double>() + Ts.linear() * s.cloud->normals[i].cast<double>()).normalized();
+        c.r = c.m.dot(c.a - c.b);
+        found[k] = c;
+        ok[k] = 1;
+      }
+    });
     std::vector<Correspondence> kept;
     kept.reserve(found.size());
     for (std::size_t k = 0; k < found.size(); ++k)
@@ -131,12 +156,14 @@ class JointIcp {
   }
 
   // One Gauss-Newton step over every pair; true when the update is below the thresholds.
-  bool step(double gate) {
+  bool step(double gate, std::size_t sources, double tolerance_deg, double tolerance_mm) {
     const int n = static_cast<int>(poses_.size());
     Eigen::MatrixXd H = Eigen::MatrixXd::Zero(6 * n, 6 * n);
     Eigen::VectorXd g = Eigen::VectorXd::Zero(6 * n);
+    double sum2 = 0;
+    std::size_t total = 0;
     for (const auto& [s, t] : pairs_) {
-      const auto corr = correspondences(s, t, gate);
+      const auto corr = correspondences(s, t, gate, sources);
       if (corr.size() < 6)
         throw std::runtime_error("ICP: views " + std::to_string(s) + " and " + std::to_string(t) + " share only " +
                                  std::to_string(corr.size()) + " correspondences within " + std::to_string(gate) +
@@ -148,20 +175,45 @@ class JointIcp {
         j << c.a.cross(c.m), c.m, -c.b.cross(c.m), -c.m;
         h.noalias() += j * j.transpose();
         gg += j * c.r;
+        sum2 += c.r * c.r;
       }
+      total += corr.size();
       const int blocks[2] = {s, t};
       for (int x = 0; x < 2; ++x)
         for (int y = 0; y < 2; ++y) H.block<6, 6>(6 * blocks[x], 6 * blocks[y]) += h.block<6, 6>(6 * x, 6 * y);
       for (int x = 0; x < 2; ++x) g.segment<6>(6 * blocks[x]) += gg.segment<6>(6 * x);
     }
-    // Fixed poses: identity rows so their update is zero.
+    // Fixed poses take no part in the solve.
     for (int v = 0; v < n; ++v) {
       if (!fixed_[static_cast<std::size_t>(v)]) continue;
       H.middleRows(6 * v, 6).setZero();
       H.middleCols(6 * v, 6).setZero();
-      H.block<6, 6>(6 * v, 6 * v).setIdentity();
       g.segment<6>(6 * v).setZero();
     }
+    // The turntable prior: the deviation e of each pose from its calibrated pose (left
+    // perturbation: pose = exp(e) prior, so an update d moves e to e + d to first order) costs
+    // e^2 / prior_sigma^2 in units of the residual variance, i.e. weight var_r / sigma^2.
+    if (prior_rad_ > 0 && prior_mm_ > 0 && total > 0) {
+      const double residual_var = std::max(sum2 / static_cast<double>(total), 1e-8);
+      const double w_rot = residual_var / (prior_rad_ * prior_rad_);
+      const double w_mm = residual_var / (prior_mm_ * prior_mm_);
+      for (int v = 0; v < n; ++v) {
+        if (fixed_[static_cast<std::size_t>(v)]) continue;
+        const Eigen::Isometry3d deviation =
+            poses_[static_cast<std::size_t>(v)] * prior_poses_[static_cast<std::size_t>(v)].inverse();
+        const Eigen::AngleAxisd angle_axis(deviation.linear());
+        const Eigen::Vector3d e_rot = angle_axis.angle() * angle_axis.axis();
+        for (int k = 0; k < 3; ++k) {
+          H(6 * v + k, 6 * v + k) += w_rot;
+          H(6 * v + 3 + k, 6 * v + 3 + k) += w_mm;
+        }
+        g.segment<3>(6 * v) += w_rot * e_rot;
+        g.segment<3>(6 * v + 3) += w_mm * deviation.translation();
+      }
+    }
+    // Fixed poses: identity rows so their update is zero.
+    for (int v = 0; v < n; ++v)
+      if (fixed_[static_cast<std::size_t>(v)]) H.block<6, 6>(6 * v, 6 * v).setIdentity();
     // A whisper of damping keeps a symmetric object's free rotation from blowing up the solve.
     const double damping = 1e-12 * std::max(1.0, H.diagonal().maxCoeff());
     H.diagonal().array() += damping;
@@ -179,17 +231,18 @@ class JointIcp {
       // Re-orthonormalise so many small updates don't drift off SO(3).
       Eigen::Quaterniond q(poses_[static_cast<std::size_t>(v)].linear());
       poses_[static_cast<std::size_t>(v)].linear() = q.normalized().toRotationMatrix();
-      if (w.norm() * kDegPerRad > options_.converged_rotation_deg || t.norm() > options_.converged_translation_mm)
-        converged = false;
+      if (w.norm() * kDegPerRad > tolerance_deg || t.norm() > tolerance_mm) converged = false;
     }
     return converged;
   }
 
   std::vector<ViewData>& views_;
   std::vector<Eigen::Isometry3d>& poses_;
+  std::vector<Eigen::Isometry3d> prior_poses_;  // the calibrated turntable poses
   std::vector<bool> fixed_;
   std::vector<std::pair<int, int>> pairs_;
   const IcpOptions& options_;
+  double prior_rad_ = 0, prior_mm_ = 0;
 };
 
 // Spreads the low 21 bits of x to every third bit (for a 63-bit Morton code).
@@ -329,7 +382,7 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
       }
       std::vector<bool> fixed(views.size(), false);
       fixed[0] = true;
-      JointIcp icp(data, poses, fixed, directed, options.icp);
+      JointIcp icp(data, poses, fixed, directed, options.icp, options.turntable_prior_deg, options.turntable_prior_mm);
       result.iterations = icp.run();
     } else {
       // Chain: register view i onto view i-1 (as placed so far), starting from their coarse

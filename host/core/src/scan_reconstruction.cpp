@@ -28,7 +28,10 @@ void ReconstructionOptions::check() const {
   flying_pixels.check();
   turntable_denoise.check();
   if (voxel_mm < 0) throw std::invalid_argument("reconstruction options: voxel_mm must be >= 0");
-  if (normal_neighbors < 3) throw std::invalid_argument("reconstruction options: normal_neighbors must be >= 3");
+  if (normal_neighbors != 0 && normal_neighbors < 3)
+    throw std::invalid_argument("reconstruction options: normal_neighbors must be 0 (the views' grid normals) or >= 3");
+  if (outliers.k < 1 || !(outliers.std_ratio > 0))
+    throw std::invalid_argument("reconstruction options: outliers need k >= 1 and std_ratio > 0");
   if (max_pending_projector_views < 1)
     throw std::invalid_argument("reconstruction options: max_pending_projector_views must be >= 1");
 }
@@ -119,14 +122,26 @@ struct ScanReconstructor::Impl {
       view = &views.at(view_index);  // std::map: stable address
     }
     const auto start = Clock::now();
-    OrganizedCloud empty;
-    empty.resize(width, height);
-    const OrganizedCloud& left = view->triangulated[0] ? view->triangulated[0]->cloud : empty;
-    const OrganizedCloud& right = view->triangulated[1] ? view->triangulated[1]->cloud : empty;
+    std::array<OrganizedCloud, 2> clouds;
+    std::array<FlyingPixelCounts, 2> flying{};
+    for (std::size_t side = 0; side < 2; ++side) {
+      if (!view->triangulated[side]) {
+        clouds[side].resize(width, height);
+        continue;
+      }
+      if (options.remove_flying_pixels) {
+        FlyingPixelResult cleaned = remove_flying_pixels(view->triangulated[side]->cloud, options.flying_pixels);
+        flying[side] = cleaned.counts;
+        clouds[side] = std::move(cleaned.cloud);
+      } else {
+        clouds[side] = std::move(view->triangulated[side]->cloud);
+        flying[side] = {clouds[side].count_valid(), 0};
+      }
+      view->triangulated[side].reset();  // free the projector's cloud early
+    }
+    const OrganizedCloud& left = clouds[0];
+    const OrganizedCloud& right = clouds[1];
     FusionResult fused = fuse_left_right(left, right, options.fusion);
-    FlyingPixelResult unflown = remove_flying_pixels(fused.cloud, options.flying_pixels);
-    auto denoised = denoise_by_turntable(unflown.cloud, calibration.turntable, options.turntable_denoise);
-
     ViewProducts products;
     products.source.assign(left.size(), FusionSource::none);
     for (std::size_t i = 0; i < left.size(); ++i) {
@@ -137,21 +152,34 @@ struct ScanReconstructor::Impl {
       else
         products.source[i] = l && r ? FusionSource::both : (l ? FusionSource::left : FusionSource::right);
     }
+    TurntableDenoiseResult<OrganizedCloud> denoised;
+    if (options.denoise_turntable) {
+      denoised = denoise_by_turntable(fused.cloud, calibration.turntable, options.turntable_denoise);
+    } else {
+      denoised.cloud = std::move(fused.cloud);
+      denoised.counts.input = denoised.counts.kept = denoised.cloud.count_valid();
+    }
     const std::vector<Eigen::Vector3f> normals =
         grid_normals(denoised.cloud, Eigen::Vector3f::Zero(), options.grid_normals);
     products.points = to_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index), &normals);
+    std::size_t outliers_removed = 0;
+    if (options.remove_outliers && products.points.size() > static_cast<std::size_t>(options.outliers.k) + 1) {
+      FilterResult filtered = statistical_outlier_removal(products.points, options.outliers);
+      outliers_removed = filtered.removed;
+      products.points = std::move(filtered.cloud);
+    }
     products.cloud = std::move(denoised.cloud);
 
     std::lock_guard lock(mutex);
     view->report.fusion = fused.counts;
-    view->report.flying_pixels = unflown.counts;
+    view->report.flying_pixels = {flying[0].input + flying[1].input, flying[0].removed + flying[1].removed};
+    for (std::size_t side = 0; side < 2; ++side) view->report.projectors[side].flying_pixels = flying[side];
     view->report.turntable_denoise = denoised.counts;
     view->report.points = products.points.size();
+    view->report.outliers_removed = outliers_removed;
     view->report.fuse_ms = ms_since(start);
+    if (options.keep_projector_clouds) products.projector_clouds = std::move(clouds);
     view->products = std::move(products);
-    // The projector clouds are no longer needed; free their memory early.
-    view->triangulated[0].reset();
-    view->triangulated[1].reset();
   }
 };
 
@@ -322,19 +350,17 @@ ScanResult ScanReconstructor::finish() {
 
   start = Clock::now();
   PointCloud merged;
-  for (std::size_t i = 0; i < clouds.size(); ++i) merged.append(transform_cloud(clouds[i], table_from_view[i]));
-  result.merged_points = merged.size();
-  if (s.options.remove_outliers && merged.size() > static_cast<std::size_t>(s.options.outliers.k) + 1) {
-    FilterResult filtered = statistical_outlier_removal(merged, s.options.outliers);
-    result.outliers_removed = filtered.removed;
-    merged = std::move(filtered.cloud);
+  for (std::size_t i = 0; i < clouds.size(); ++i) {
+    merged.append(transform_cloud(clouds[i], table_from_view[i]));
+    result.outliers_removed += result.views[i].outliers_removed;
   }
-  result.stage_ms["outlier_removal"] = ms_since(start);
+  result.merged_points = merged.size();
+  result.stage_ms["merge"] = ms_since(start);
   start = Clock::now();
   if (s.options.voxel_mm > 0) merged = voxel_downsample(merged, s.options.voxel_mm);
   result.stage_ms["voxel"] = ms_since(start);
   start = Clock::now();
-  if (merged.size() >= static_cast<std::size_t>(s.options.normal_neighbors)) {
+  if (s.options.normal_neighbors >= 3 && merged.size() >= static_cast<std::size_t>(s.options.normal_neighbors)) {
     PcaNormalOptions normal_options;
     normal_options.k = s.options.normal_neighbors;
     normal_options.orientation = NormalOrientation::away_from_axis;  // turntable frame: axis = origin + z

@@ -16,12 +16,16 @@
 namespace slscan::core {
 
 struct CornerDetectionOptions {
-  // false: the classic cv::findChessboardCorners, falling back to the sector-based
-  // cv::findChessboardCornersSB where it fails; true: the sector-based one only. Either way
+  // false: the sector-based cv::findChessboardCornersSB, falling back to the classic
+  // cv::findChessboardCorners where it fails; true: the sector-based one only. Either way
   // the corners are refined with cv::cornerSubPix (the sector-based corners alone scatter by
   // ~0.25 px on a synthetic board with 1 DN of noise, refined ones by ~0.07 px).
   bool sector_based = false;
-  int subpixel_half_window = 5;  // upper bound; also kept within 0.35 of the corner spacing
+  int subpixel_half_window = 10;  // upper bound; also kept within 0.35 of the corner spacing
+  // Gaussian blur (camera px) of the image cornerSubPix works on. Edges only a pixel wide lock
+  // the refined corner to the pixel grid (virtual rig, noise off: 0.053 px RMS to the truth
+  // unblurred, 0.037 px at 0.7); a real lens's blur does the same job. 0: none.
+  double subpixel_smoothing_sigma = 0.7;
 };
 
 struct CornerDetection {

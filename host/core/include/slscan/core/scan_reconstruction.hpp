@@ -32,18 +32,28 @@ struct ReconstructionOptions {
   DecodeOptions decode;
   TriangulateOptions triangulate;
   FusionOptions fusion;
+  bool remove_flying_pixels = true;  // on each projector's cloud, before fusion
   FlyingPixelOptions flying_pixels;
+  bool denoise_turntable = true;  // false keeps the platform and background (accuracy studies)
   TurntableDenoiseOptions turntable_denoise;
   GridNormalOptions grid_normals;
   bool register_views = true;  // false: coarse turntable poses only
   RegistrationOptions registration;
+  // Statistical outlier removal on each view's cloud, on the worker that fused it (so it runs
+  // while the next view streams in, not after the last frame).
   bool remove_outliers = true;
   StatisticalOutlierOptions outliers;
   double voxel_mm = 0;  // > 0: thin the merged model to one point per voxel
-  int normal_neighbors = 20;
+  // The model's normals: 0 keeps each view's grid normals (from its organised cloud, facing
+  // its camera: outward), computed on the workers; >= 3 recomputes PCA normals over the merged
+  // model with that many neighbours (slower, after the last frame; smoother where views overlap).
+  int normal_neighbors = 0;
   bool build_mesh = true;
   PoissonOptions mesh;
   int max_pending_projector_views = 8;  // decoders in flight (each holds one projector-view of frames)
+  // Keep each projector's cloud (after flying-pixel removal) in ViewProducts: for accuracy
+  // studies and the per-projector reports; off in scans (two more clouds per view in memory).
+  bool keep_projector_clouds = false;
 
   void check() const;  // throws std::invalid_argument naming the field
 };
@@ -55,6 +65,7 @@ struct ProjectorViewReport {
   bool present = false;
   DecodeCounts decode;
   TriangulateCounts triangulate;
+  FlyingPixelCounts flying_pixels;
   double decode_ms = 0, triangulate_ms = 0;
 };
 
@@ -63,17 +74,19 @@ struct ViewReport {
   double commanded_angle_deg = 0, reported_angle_deg = 0;
   std::array<ProjectorViewReport, 2> projectors;
   FusionCounts fusion;
-  FlyingPixelCounts flying_pixels;
+  FlyingPixelCounts flying_pixels;  // both projectors' together
   TurntableDenoiseCounts turntable_denoise;
   std::size_t points = 0;  // in the view's cloud after cleaning
+  std::size_t outliers_removed = 0;
   double fuse_ms = 0;
 };
 
 // What a view leaves for reports and pictures (camera frame of that view).
 struct ViewProducts {
-  OrganizedCloud cloud;              // fused, flying pixels and turntable removed
-  std::vector<FusionSource> source;  // per pixel
-  PointCloud points;                 // cloud's valid points with grid normals
+  OrganizedCloud cloud;                            // fused, flying pixels and turntable removed
+  std::vector<FusionSource> source;                // per pixel
+  std::array<OrganizedCloud, 2> projector_clouds;  // only with keep_projector_clouds
+  PointCloud points;                               // cloud's valid points with grid normals
 };
 
 struct ScanResult {

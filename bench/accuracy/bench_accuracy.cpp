@@ -1,0 +1,478 @@
+// Accuracy of the whole reconstruction against the virtual rig's ground truth (issue 4's
+// accuracy section), through ScanReconstructor: the code path of a scan.
+//
+//   bench_accuracy [--size full|small] [--scenes ballbar,blade,teacup] [--views N] [--mesh]
+//                  [--json FILE] [--outliers CSV]
+//
+// Per view: each projector's cloud and the fused cloud (object and platform: the working
+// volume) against the per-pixel truth: median, RMS, fraction beyond 0.2 mm; points a projector
+// gave inside its own true shadow; coverage of what the projectors light and the camera sees;
+// the shadow-hole area that left/right fusion filled; the final object-only cloud. Per scene:
+// the registered 6-view model in the truth's table frame: the ball bar's spheres and centre
+// distance, stray points above the platform away from the object, the fraction of the true
+// surface within 0.1 mm of a model point (360-degree coverage). Then the stage times after the
+// last frame and the peak memory. Full resolution takes ~1-2 min per scene on 2 cores.
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <numbers>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "cloud_filters_kdtree.hpp"
+#include "slproto/calibration.hpp"
+#include "slrig/rig.hpp"
+#include "slscan/core/fusion.hpp"
+#include "slscan/core/measure.hpp"
+#include "slscan/core/registration.hpp"
+#include "slscan/core/scan_reconstruction.hpp"
+
+namespace {
+
+using slscan::core::OrganizedCloud;
+using Json = nlohmann::ordered_json;
+using Clock = std::chrono::steady_clock;
+
+constexpr std::int16_t kTurntable = 0, kWall = 1;
+
+// What a view's truth keeps after its renderer is gone (the renderer holds ~10 buffers).
+struct ViewTruth {
+  int width = 0, height = 0;
+  std::vector<float> points, normals;
+  std::vector<std::int16_t> object_id;
+  std::array<std::vector<std::uint8_t>, 2> lit;
+  slproto::RigidTransform cam_from_table;
+  std::size_t at(int u, int v) const {
+    return static_cast<std::size_t>(v) * static_cast<std::size_t>(width) + static_cast<std::size_t>(u);
+  }
+  Eigen::Vector3f point(std::size_t i) const { return {points[3 * i], points[3 * i + 1], points[3 * i + 2]}; }
+  bool working_volume(std::size_t i) const { return std::isfinite(points[3 * i]) && object_id[i] != kWall; }
+};
+
+struct ErrorStats {
+  std::size_t points = 0, beyond_0_2mm = 0;
+  double median_um = 0, rms_um = 0;
+  double fraction_beyond_percent() const {
+    return points ? 100.0 * static_cast<double>(beyond_0_2mm) / static_cast<double>(points) : 0;
+  }
+  Json json() const {
+    return {{"points", points},
+            {"median_um", median_um},
+            {"rms_um", rms_um},
+            {"beyond_0_2mm_percent", fraction_beyond_percent()}};
+  }
+};
+
+// Points of the working volume (object and platform: the wall is 2x the working distance away
+// and the turntable denoise removes it) against the truth of their own pixel.
+ErrorStats error_stats(const OrganizedCloud& cloud, const ViewTruth& truth, bool object_only = false) {
+  ErrorStats stats;
+  std::vector<double> errors;
+  double sum2 = 0;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!cloud.valid[i] || truth.object_id[i] == kWall) continue;
+    if (object_only && truth.object_id[i] < 2) continue;
+    ++stats.points;
+    const Eigen::Vector3f g = truth.point(i);
+    if (!g.allFinite()) {  // a point where the camera sees nothing
+      ++stats.beyond_0_2mm;
+      continue;
+    }
+    const double e = (cloud.points[i] - g).norm();
+    errors.push_back(e);
+    sum2 += e * e;
+    if (e > 0.2) ++stats.beyond_0_2mm;
+  }
+  if (!errors.empty()) {
+    std::nth_element(errors.begin(), errors.begin() + static_cast<long>(errors.size() / 2), errors.end());
+    stats.median_um = 1e3 * errors[errors.size() / 2];
+    stats.rms_um = 1e3 * std::sqrt(sum2 / static_cast<double>(errors.size()));
+  }
+  return stats;
+}
+
+// A point counts as in projector s's shadow only if no pixel of its 3 x 3 neighbourhood is lit
+// (a pixel whose centre is shadowed can still be partly lit at the shadow's border).
+std::size_t points_in_true_shadow(const OrganizedCloud& cloud, const ViewTruth& truth, std::size_t s) {
+  std::size_t count = 0;
+  for (int v = 0; v < truth.height; ++v)
+    for (int u = 0; u < truth.width; ++u) {
+      const std::size_t i = truth.at(u, v);
+      if (!cloud.valid[i] || truth.lit[s][i]) continue;
+      bool near_lit = false;
+      for (int dv = -1; dv <= 1; ++dv)
+        for (int du = -1; du <= 1; ++du) {
+          const int uu = u + du, vv = v + dv;
+          if (uu >= 0 && vv >= 0 && uu < truth.width && vv < truth.height && truth.lit[s][truth.at(uu, vv)])
+            near_lit = true;
+        }
+      count += near_lit ? 0 : 1;
+    }
+  return count;
+}
+
+// Coverage of the working-volume pixels that a projector lights and the camera sees: all of
+// them (raw), and those whose 5 x 5 neighbourhood is lit by the same projector and shows the
+// same object (the reach of the flying-pixel filter: edge pixels are legitimately dropped).
+Json coverage(const OrganizedCloud& fused, const ViewTruth& truth) {
+  std::size_t lit_seen = 0, lit_seen_covered = 0, interior = 0, interior_covered = 0;
+  for (int v = 0; v < truth.height; ++v)
+    for (int u = 0; u < truth.width; ++u) {
+      const std::size_t i = truth.at(u, v);
+      if (!truth.working_volume(i) || !(truth.lit[0][i] || truth.lit[1][i])) continue;
+      ++lit_seen;
+      lit_seen_covered += fused.valid[i] != 0;
+      bool inside = false;
+      for (std::size_t s = 0; s < 2 && !inside; ++s) {
+        bool ok = truth.lit[s][i] && u >= 2 && v >= 2 && u < truth.width - 2 && v < truth.height - 2;
+        for (int dv = -2; dv <= 2 && ok; ++dv)
+          for (int du = -2; du <= 2 && ok; ++du) {
+            const std::size_t j = truth.at(u + du, v + dv);
+            ok = truth.lit[s][j] && truth.object_id[j] == truth.object_id[i];
+          }
+        inside = ok;
+      }
+      if (!inside) continue;
+      ++interior;
+      interior_covered += fused.valid[i] != 0;
+    }
+  auto percent = [](std::size_t a, std::size_t b) {
+    return b ? 100.0 * static_cast<double>(a) / static_cast<double>(b) : 100.0;
+  };
+  return {{"lit_and_seen_pixels", lit_seen},
+          {"raw_percent", percent(lit_seen_covered, lit_seen)},
+          {"interior_pixels", interior},
+          {"interior_percent", percent(interior_covered, interior)}};
+}
+
+// Object surface (mm^2) measured by one projector only where the other's light does not reach:
+// the shadow holes that left/right fusion filled. A pixel's footprint is (z / f)^2 / cos(incidence).
+double filled_shadow_area_mm2(const std::vector<slscan::core::FusionSource>& source, const ViewTruth& truth,
+                              const slproto::PinholeModel& camera) {
+  double area = 0;
+  for (std::size_t i = 0; i < source.size(); ++i) {
+    const bool left_only = source[i] == slscan::core::FusionSource::left;
+    const bool right_only = source[i] == slscan::core::FusionSource::right;
+    if (!(left_only || right_only) || truth.object_id[i] < 2) continue;
+    if (truth.lit[left_only ? 1 : 0][i]) continue;  // the other projector lights it: not a shadow
+    const Eigen::Vector3f p = truth.point(i);
+    const Eigen::Vector3f n(truth.normals[3 * i], truth.normals[3 * i + 1], truth.normals[3 * i + 2]);
+    const float cos_incidence = std::max(0.05f, std::fabs(n.dot(p.normalized())));
+    area += static_cast<double>(p.z() * p.z()) / (camera.fx * camera.fy) / cos_incidence;
+  }
+  return area;
+}
+
+// One line per fused working-volume point farther than 0.2 mm from its truth, with what is
+// around it: to find where the outliers sit (silhouettes, shadow borders, grazing surfaces).
+void append_outliers(std::FILE* csv, const std::string& scene, int view, const OrganizedCloud& fused,
+                     const std::vector<slscan::core::FusionSource>& source, const ViewTruth& truth) {
+  const int reach = 4;
+  for (int v = 0; v < truth.height; ++v)
+    for (int u = 0; u < truth.width; ++u) {
+      const std::size_t i = truth.at(u, v);
+      if (!fused.valid[i] || truth.object_id[i] == kWall) continue;
+      const Eigen::Vector3f g = truth.point(i);
+      const double error = g.allFinite() ? (fused.points[i] - g).norm() : -1;
+      if (error >= 0 && error <= 0.2) continue;
+      // Chebyshev distance (px) to the nearest pixel of another object or of nothing, and to
+      // the nearest pixel unlit by each projector; reach + 1 when none is that close.
+      int to_edge = reach + 1;
+      std::array<int, 2> to_shadow{reach + 1, reach + 1};
+      for (int dv = -reach; dv <= reach; ++dv)
+        for (int du = -reach; du <= reach; ++du) {
+          const int uu = u + du, vv = v + dv;
+          if (uu < 0 || vv < 0 || uu >= truth.width || vv >= truth.height) continue;
+          const std::size_t j = truth.at(uu, vv);
+          const int d = std::max(std::abs(du), std::abs(dv));
+          if (truth.object_id[j] != truth.object_id[i] || !std::isfinite(truth.points[3 * j]))
+            to_edge = std::min(to_edge, d);
+          for (std::size_t s = 0; s < 2; ++s)
+            if (!truth.lit[s][j]) to_shadow[s] = std::min(to_shadow[s], d);
+        }
+      const Eigen::Vector3f n(truth.normals[3 * i], truth.normals[3 * i + 1], truth.normals[3 * i + 2]);
+      const double view_angle_deg =
+          std::acos(std::min(1.0f, std::fabs(n.dot(g.normalized())))) * 180.0 / std::numbers::pi;
+      std::fprintf(csv, "%s,%d,%d,%d,%.4f,%d,%d,%.1f,%d,%d,%d\n", scene.c_str(), view, u, v, error, truth.object_id[i],
+                   static_cast<int>(source[i]), view_angle_deg, to_edge, to_shadow[0], to_shadow[1]);
+    }
+}
+
+Eigen::Isometry3d to_isometry(const slproto::RigidTransform& t) {
+  Eigen::Isometry3d m = Eigen::Isometry3d::Identity();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) m.linear()(r, c) = t.R[static_cast<std::size_t>(3 * r + c)];
+    m.translation()(r) = t.t[static_cast<std::size_t>(r)];
+  }
+  return m;
+}
+
+long peak_rss_mb() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss / 1024;
+}
+
+Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool mesh, std::FILE* outliers_csv) {
+  auto scene_or = slrig::scene_preset(name, size);
+  if (!scene_or) throw std::runtime_error(scene_or.error().message);
+  const slrig::Scene scene = *scene_or;
+  const slproto::RigCalibration calibration = slrig::ground_truth_calibration(scene);
+  const slproto::PatternPlan plan(calibration.pattern_plan);
+  slscan::core::ReconstructionOptions options;
+  options.decode.bit_depth = scene.sensor.bit_depth;
+  options.keep_projector_clouds = true;
+  options.build_mesh = mesh;
+  const int width = scene.camera.width, height = scene.camera.height;
+  slscan::core::ScanReconstructor reconstructor(calibration, plan, width, height, options);
+
+  const std::size_t views = std::min(scene.view_angles_deg.size(), static_cast<std::size_t>(std::max(1, max_views)));
+  std::vector<ViewTruth> truths;
+  double render_s = 0;
+  std::vector<std::uint8_t> frame;
+  for (std::size_t view = 0; view < views; ++view) {
+    const double angle = scene.view_angles_deg[view];
+    slrig::ViewRenderer renderer(scene, angle, static_cast<int>(view));
+    frame.resize(renderer.frame_bytes());
+    const int bytes_per_pixel = scene.sensor.bit_depth > 8 ? 2 : 1;
+    for (int side = 0; side < 2; ++side)
+      for (std::size_t p = 0; p < plan.size(); ++p) {
+        const auto t0 = Clock::now();
+        renderer.render(static_cast<slproto::ProjectorSide>(side), p, frame);
+        render_s += std::chrono::duration<double>(Clock::now() - t0).count();
+        slscan::core::FrameInfo info;
+        info.view_index = static_cast<int>(view);
+        info.commanded_angle_deg = info.reported_angle_deg = angle;
+        info.projector = side;
+        info.pattern_index = p;
+        info.bytes_per_pixel = bytes_per_pixel;
+        info.stride_bytes = static_cast<std::size_t>(width * bytes_per_pixel);
+        reconstructor.add_frame(info, std::as_bytes(std::span(frame)));
+      }
+    const auto& t = renderer.ground_truth();
+    ViewTruth truth{t.width, t.height, t.points, t.normals, t.object_id, t.lit, t.cam_from_table};
+    truths.push_back(std::move(truth));
+  }
+  const auto finish_start = Clock::now();
+  slscan::core::ScanResult result = reconstructor.finish();
+  const double finish_ms = std::chrono::duration<double, std::milli>(Clock::now() - finish_start).count();
+
+  Json out;
+  out["scene"] = name;
+  out["size"] = std::to_string(width) + " x " + std::to_string(height);
+  Json view_reports = Json::array();
+  double filled_area_total = 0;
+  for (std::size_t v = 0; v < result.views.size(); ++v) {
+    const auto& report = result.views[v];
+    const auto& products = result.view_products[v];
+    const ViewTruth& truth = truths.at(static_cast<std::size_t>(report.view_index));
+    Json j;
+    j["view"] = report.view_index;
+    for (std::size_t s = 0; s < 2; ++s) {
+      const OrganizedCloud& cloud = products.projector_clouds[s];
+      Json pj = error_stats(cloud, truth).json();
+      pj["points_in_own_true_shadow"] = points_in_true_shadow(cloud, truth, s);
+      pj["decode_ms"] = report.projectors[s].decode_ms;
+      pj["triangulate_ms"] = report.projectors[s].triangulate_ms;
+      j[s == 0 ? "left" : "right"] = pj;
+    }
+    const auto fused =
+        slscan::core::fuse_left_right(products.projector_clouds[0], products.projector_clouds[1], options.fusion);
+    j["fused"] = error_stats(fused.cloud, truth).json();
+    if (outliers_csv) append_outliers(outliers_csv, name, report.view_index, fused.cloud, products.source, truth);
+    j["fused"]["coverage"] = coverage(fused.cloud, truth);
+    j["fusion"] = {{"both", report.fusion.both},
+                   {"left_only", report.fusion.left_only},
+                   {"right_only", report.fusion.right_only},
+                   {"rejected", report.fusion.rejected}};
+    const double filled = filled_shadow_area_mm2(products.source, truth, calibration.camera);
+    filled_area_total += filled;
+    j["shadow_area_filled_mm2"] = filled;
+    j["final_object_cloud"] = error_stats(products.cloud, truth, true).json();
+    view_reports.push_back(j);
+  }
+  out["views"] = view_reports;
+  out["shadow_area_filled_mm2"] = filled_area_total;
+
+  // The model, from the host's table frame to the rig's: view 0 is held at its coarse pose.
+  const Eigen::Isometry3d host_table_from_cam0 =
+      slscan::core::coarse_table_from_view(calibration.turntable, scene.view_angles_deg[0]);
+  const Eigen::Isometry3d rig_table_from_host_table =
+      to_isometry(truths[0].cam_from_table).inverse() * host_table_from_cam0.inverse();
+  std::vector<Eigen::Vector3f> model(result.model.points.size());
+  const Eigen::Isometry3f to_rig = rig_table_from_host_table.cast<float>();
+  for (std::size_t i = 0; i < model.size(); ++i) model[i] = to_rig * result.model.points[i];
+
+  const slrig::SurfaceSample surface = slrig::sample_object_surfaces(scene, 0.05);
+  std::vector<Eigen::Vector3f> truth_points(surface.points.size() / 3);
+  for (std::size_t i = 0; i < truth_points.size(); ++i)
+    truth_points[i] = {surface.points[3 * i], surface.points[3 * i + 1], surface.points[3 * i + 2]};
+  Json model_json;
+  model_json["points"] = model.size();
+  model_json["registered"] = result.registered;
+  model_json["registration_iterations"] = result.registration.iterations;
+  double max_correction_deg = 0, max_correction_mm = 0;
+  for (const auto& r : result.registration.views) {
+    max_correction_deg = std::max(max_correction_deg, r.correction_deg);
+    max_correction_mm = std::max(max_correction_mm, r.correction_mm);
+  }
+  model_json["max_registration_correction_deg"] = max_correction_deg;
+  model_json["max_registration_correction_mm"] = max_correction_mm;
+  if (!truth_points.empty() && !model.empty()) {
+    const slscan::core::detail::KdTree truth_tree(truth_points);
+    const slscan::core::detail::KdTree model_tree(model);
+    // Stray points: above the platform by more than 0.5 mm and more than 0.5 mm from the object.
+    std::size_t stray = 0, near_object = 0;
+    std::vector<double> distances;
+    distances.reserve(model.size());
+    for (const auto& p : model) {
+      float d2 = 0;
+      const std::int64_t nearest = truth_tree.nearest_within(p, 0.5f, d2);
+      if (nearest >= 0) {
+        ++near_object;
+        // Point to surface: along the true normal at the nearest sample (samples are 0.05 mm
+        // apart, so the distance to the sample itself would read ~20 um on a perfect point).
+        const auto k = static_cast<std::size_t>(nearest);
+        const Eigen::Vector3f n(surface.normals[3 * k], surface.normals[3 * k + 1], surface.normals[3 * k + 2]);
+        distances.push_back(std::fabs(static_cast<double>(n.dot(p - truth_points[k]))));
+      } else if (p.z() > 0.5f) {
+        ++stray;
+      }
+    }
+    std::sort(distances.begin(), distances.end());
+    model_json["stray_points_above_0_5mm"] = stray;
+    model_json["points_within_0_5mm_of_object"] = near_object;
+    if (!distances.empty()) {
+      model_json["distance_to_true_surface_median_um"] = 1e3 * distances[distances.size() / 2];
+      model_json["distance_to_true_surface_p99_um"] = 1e3 * distances[distances.size() * 99 / 100];
+    }
+    // 360-degree coverage: true surface samples with a model point within 0.1 mm, per object.
+    std::map<int, std::pair<std::size_t, std::size_t>> by_object;
+    for (std::size_t i = 0; i < truth_points.size(); ++i) {
+      float d2 = 0;
+      auto& [covered, total] = by_object[surface.object_id[i]];
+      ++total;
+      covered += model_tree.nearest_within(truth_points[i], 0.1f, d2) >= 0 ? 1 : 0;
+    }
+    Json cov = Json::object();
+    for (const auto& [id, counts] : by_object)
+      cov[scene.objects.at(static_cast<std::size_t>(id - 2)).name] =
+          100.0 * static_cast<double>(counts.first) / static_cast<double>(counts.second);
+    model_json["surface_within_0_1mm_percent"] = cov;
+  }
+  if (name == "ballbar") {
+    const slrig::SceneObject* bar = nullptr;
+    for (const auto& o : scene.objects)
+      if (o.kind == slrig::ObjectKind::ballbar) bar = &o;
+    slscan::core::PointCloud cloud;
+    cloud.points = model;
+    slscan::core::BallBarOptions bar_options;
+    bar_options.nominal_radii_mm = {bar->radius_a, bar->radius_b};
+    try {
+      const auto m = slscan::core::measure_ball_bar(cloud, bar_options);
+      model_json["ball_bar"] = {{"centre_distance_mm", m.centre_distance_mm},
+                                {"centre_distance_error_um", 1e3 * (m.centre_distance_mm - bar->centre_distance)},
+                                {"radius_a_error_um", 1e3 * (m.spheres[0].radius_mm - bar->radius_a)},
+                                {"radius_b_error_um", 1e3 * (m.spheres[1].radius_mm - bar->radius_b)},
+                                {"form_error_a_um", 1e3 * m.spheres[0].form_error_mm},
+                                {"form_error_b_um", 1e3 * m.spheres[1].form_error_mm},
+                                {"sphere_rms_a_um", 1e3 * m.spheres[0].rms_mm},
+                                {"sphere_rms_b_um", 1e3 * m.spheres[1].rms_mm}};
+    } catch (const std::exception& e) {
+      model_json["ball_bar"] = {{"error", e.what()}};
+    }
+  }
+  out["model"] = model_json;
+  Json stages = Json::object();
+  for (const auto& [stage, ms] : result.stage_ms) stages[stage] = ms;
+  out["after_last_frame_ms"] = {{"total", finish_ms}, {"stages", stages}};
+  out["render_s"] = render_s;
+  out["peak_rss_mb"] = peak_rss_mb();
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string size_name = "full", json_path, outliers_path;
+  std::vector<std::string> scenes{"ballbar", "blade", "teacup"};
+  int max_views = 6;
+  bool mesh = false;
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(arg + " needs a value");
+      return argv[++i];
+    };
+    try {
+      if (arg == "--size") {
+        size_name = value();
+      } else if (arg == "--scenes") {
+        scenes.clear();
+        std::stringstream list(value());
+        for (std::string s; std::getline(list, s, ',');) scenes.push_back(s);
+      } else if (arg == "--views") {
+        max_views = std::stoi(value());
+      } else if (arg == "--mesh") {
+        mesh = true;
+      } else if (arg == "--outliers") {
+        outliers_path = value();
+      } else if (arg == "--json") {
+        json_path = value();
+      } else {
+        std::fprintf(stderr,
+                     "usage: bench_accuracy [--size full|small] [--scenes a,b] [--views N] [--mesh] [--json FILE] "
+                     "[--outliers CSV]\n");
+        return 2;
+      }
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "bench_accuracy: %s\n", e.what());
+      return 2;
+    }
+  }
+  if (size_name != "full" && size_name != "small") {
+    std::fprintf(stderr, "bench_accuracy: --size must be full or small, not '%s'\n", size_name.c_str());
+    return 2;
+  }
+  const auto size = size_name == "full" ? slrig::RigSize::full : slrig::RigSize::small;
+  std::FILE* outliers = nullptr;
+  if (!outliers_path.empty()) {
+    outliers = std::fopen(outliers_path.c_str(), "w");
+    if (!outliers) {
+      std::fprintf(stderr, "bench_accuracy: cannot write %s\n", outliers_path.c_str());
+      return 1;
+    }
+    std::fprintf(outliers,
+                 "scene,view,u,v,error_mm,object_id,fusion_source,view_angle_deg,px_to_edge,"
+                 "px_to_left_shadow,px_to_right_shadow\n");
+  }
+  Json report = Json::array();
+  for (const auto& name : scenes) {
+    try {
+      Json scene = run_scene(name, size, max_views, mesh, outliers);
+      std::printf("%s\n", scene.dump(1).c_str());
+      std::fflush(stdout);
+      report.push_back(std::move(scene));
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "bench_accuracy: scene '%s': %s\n", name.c_str(), e.what());
+      if (outliers) std::fclose(outliers);
+      return 1;
+    }
+  }
+  if (outliers) std::fclose(outliers);
+  if (!json_path.empty()) {
+    const std::string text = report.dump(2) + "\n";
+    if (auto status = slproto::write_file_atomically(json_path, text); !status) {
+      std::fprintf(stderr, "bench_accuracy: %s\n", status.error().message.c_str());
+      return 1;
+    }
+  }
+  return 0;
+}
