@@ -3,6 +3,7 @@
 // blur at the Gray edges, sensor noise and 8/16-bit quantisation). No rig needed.
 #include <gtest/gtest.h>
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -362,6 +363,98 @@ TEST(Decode, TwelveBitFrames) {
 }  // namespace
 
 namespace {
+
+// The smoothing as docs/pipeline.md states it, written plainly per window in double: the
+// decoder's separable sums must give the same values.
+std::vector<float> reference_smoothing(const DecodedView& raw, float max_deviation) {
+  const int w = raw.width, h = raw.height;
+  std::vector<float> out = raw.coordinate;
+  auto at = [&](int u, int v) { return raw.coordinate[static_cast<std::size_t>(v * w + u)]; };
+  for (int v = 1; v < h - 1; ++v) {
+    const int r = (v >= 2 && v < h - 2) ? 2 : 1;
+    for (int u = r; u < w - r; ++u) {
+      const double c = at(u, v);
+      if (std::isnan(c)) continue;
+      double s5 = 0, s3 = 0;
+      int n5 = 0, n3 = 0;
+      Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+      for (int dv = -r; dv <= r; ++dv)
+        for (int du = -r; du <= r; ++du) {
+          const double value = at(u + du, v + dv);
+          if (std::isnan(value)) continue;
+          ++n5;
+          s5 += value;
+          if (std::abs(du) <= 1 && std::abs(dv) <= 1) {
+            ++n3;
+            s3 += value;
+          }
+          const Eigen::Vector3d basis(1.0, du, dv);
+          normal += basis * basis.transpose();
+          rhs += basis * (value - c);
+        }
+      const int full = (2 * r + 1) * (2 * r + 1);
+      auto& result = out[static_cast<std::size_t>(v * w + u)];
+      if (n5 == full) {
+        const double m5 = s5 / full - c, m3 = s3 / 9 - c;
+        const double tolerance = 0.8 / std::max<double>(raw.quality[static_cast<std::size_t>(v * w + u)], 1.0);
+        if (std::abs(m5) <= max_deviation) {
+          const bool curved = r == 2 && std::abs(m5 - m3) > tolerance;
+          result = static_cast<float>(c + (curved ? 1.5 * m3 - 0.5 * m5 : m5));
+        } else if (n3 == 9 && std::abs(m3) <= max_deviation) {
+          result = static_cast<float>(c + m3);
+        }
+      } else if (n5 >= 6) {
+        const Eigen::FullPivLU<Eigen::Matrix3d> lu(normal);
+        if (lu.rank() == 3) {
+          const double a = lu.solve(rhs)(0);
+          if (std::abs(a) <= max_deviation) result = static_cast<float>(c + a);
+        }
+      }
+    }
+  }
+  return out;
+}
+
+TEST(Decode, SmoothingMatchesTheWindowDefinition) {
+  const PatternPlan plan;
+  SceneModel scene;
+  scene.width = 200;
+  scene.height = 48;
+  // Curved (so the Richardson branch runs), with a depth step (the deviation gate), a masked
+  // band and a masked hole (the plane fit), under noise.
+  scene.coordinate = [](int u, int v) {
+    return 2.37 + 3.4713 * u + 0.0917 * v + 0.0011 * (u - 100) * (u - 100) + (u >= 150 ? 0.8 : 0.0);
+  };
+  scene.noise_dn = 2.0;
+  scene.gain = [](int u, int v) {
+    if (u < 30) return 0.0;
+    if (u >= 90 && u < 96 && v >= 20 && v < 25) return 0.0;
+    return 60.0 + 0.5 * u;
+  };
+  DecodeOptions raw_options;
+  raw_options.smoothing_radius = 0;
+  const DecodedView raw = decode(plan, scene, raw_options);
+  const DecodedView smoothed = decode(plan, scene);
+  ASSERT_EQ(raw.mask, smoothed.mask);
+  const std::vector<float> expected = reference_smoothing(raw, DecodeOptions{}.smoothing_max_deviation_px);
+  std::size_t compared = 0, changed = 0, off = 0;
+  double worst = 0;
+  for (std::size_t i = 0; i < expected.size(); ++i) {
+    if (std::isnan(expected[i])) {
+      EXPECT_TRUE(std::isnan(smoothed.coordinate[i])) << "pixel " << i;
+      continue;
+    }
+    ++compared;
+    if (expected[i] != raw.coordinate[i]) ++changed;
+    const double diff = std::abs(static_cast<double>(smoothed.coordinate[i]) - expected[i]);
+    worst = std::max(worst, diff);
+    if (diff > 1e-4) ++off;  // a decision at its threshold may flip on round-off
+  }
+  EXPECT_GT(changed, compared * 9 / 10) << "most pixels should be smoothed";
+  EXPECT_LE(off, compared / 1000) << "worst " << worst;
+  EXPECT_LT(worst, 0.05);
+}
 
 TEST(Decode, SmoothingReducesNoiseWithoutBiasAtMaskEdges) {
   const PatternPlan plan;

@@ -180,6 +180,62 @@ TEST(Triangulate, IgnoringProjectorDistortionWouldBeWrong) {
   EXPECT_GT(worst_wrong, 0.5);
 }
 
+TEST(Triangulate, BulkPathAgreesWithSinglePixelsAndCountsEachReason) {
+  // Rows of a plane view with some pixels made undecoded, some given a coordinate whose
+  // surface meets the ray behind the camera, and a depth window that cuts the plane: every
+  // pixel must come out as intersect() says, and the counts must add up per reason.
+  const PinholeModel camera = distorted_camera();
+  const auto rays = std::make_shared<const CameraRayTable>(CameraRayTable::build(camera));
+  const ProjectorCalibration projector = distorted_projector(1.0);
+  const Plane plane{Eigen::Vector3d(0.3, -0.2, -1.0).normalized(), 0};
+  Plane placed = plane;
+  placed.offset = plane.normal.dot(Eigen::Vector3d(0, 0, 400));
+  std::vector<Eigen::Vector3d> truth;
+  DecodedView decoded = exact_decode(camera, projector, placed, CodingAxis::columns, truth);
+  const auto n = decoded.coordinate.size();
+  std::size_t undecoded = 0;
+  for (std::size_t i = 0; i < n; i += 7) {
+    if (std::isnan(decoded.coordinate[i])) continue;
+    decoded.coordinate[i] = std::numeric_limits<float>::quiet_NaN();
+    ++undecoded;
+  }
+  for (std::size_t i = 3; i < n; i += 11) decoded.coordinate[i] = 1139.0f;  // behind the camera near the left
+  slscan::core::TriangulateOptions options;
+  options.min_depth_mm = 380;
+  options.max_depth_mm = 420;
+  const ProjectorTriangulator triangulator(rays, projector, CodingAxis::columns, options);
+  const auto result = triangulator.triangulate(decoded);
+  std::size_t agreeing = 0, valid = 0, not_decoded = 0;
+  double worst_mm = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::isnan(decoded.coordinate[i])) ++not_decoded;
+    Eigen::Vector3f point;
+    const bool single = triangulator.intersect(rays->x[i], rays->y[i], decoded.coordinate[i], point);
+    ASSERT_EQ(single, result.cloud.valid[i] != 0) << "pixel " << i;
+    if (!single) {
+      EXPECT_TRUE(std::isnan(result.cloud.points[i].z()));
+      EXPECT_EQ(result.cloud.quality[i], 0.0f);
+      continue;
+    }
+    ++valid;
+    worst_mm = std::max(worst_mm, static_cast<double>((result.cloud.points[i] - point).norm()));
+    if (result.cloud.points[i] == point) ++agreeing;
+    EXPECT_EQ(result.cloud.quality[i], decoded.quality[i]);
+  }
+  const auto& c = result.counts;
+  EXPECT_EQ(c.valid, valid);
+  EXPECT_EQ(c.not_decoded, not_decoded);
+  EXPECT_GT(undecoded, 1000u);
+  EXPECT_GT(c.no_intersection, 500u) << "coordinate 1139 should meet some rays behind the camera";
+  EXPECT_GT(c.outside_depth, 1000u) << "the depth window cuts the tilted plane";
+  EXPECT_GT(valid, 10000u);
+  EXPECT_EQ(c.valid + c.not_decoded + c.no_intersection + c.not_converged + c.outside_frustum + c.outside_depth, n);
+  // A tile may take one Newton step more than a lone pixel (it stops when all its pixels
+  // have): that changes nothing beyond float round-off.
+  EXPECT_LT(worst_mm, 1e-4);
+  EXPECT_GT(agreeing, valid * 9 / 10);
+}
+
 TEST(Triangulate, MasksWhatCannotBeMeasured) {
   const PinholeModel camera = distorted_camera();
   const auto rays = std::make_shared<const CameraRayTable>(CameraRayTable::build(camera));

@@ -111,17 +111,9 @@ DecodedView ProjectorViewDecoder::finish() {
 
 namespace {
 
-// Row scratch of one worker: the per-pixel sums of one row, reused for every row it decodes.
-struct RowScratch {
-  std::vector<float> threshold2, contrast, sum_sin, sum_cos, sum;
-  std::vector<std::uint32_t> code, max_value;
-  void resize(int width) {
-    const auto w = static_cast<std::size_t>(width);
-    for (auto* v : {&threshold2, &contrast, &sum_sin, &sum_cos, &sum}) v->resize(w);
-    code.resize(w);
-    max_value.resize(w);
-  }
-};
+// Columns per tile: a tile's sums (a few floats per pixel) stay in L1 while the 19 planes'
+// rows stream through once.
+constexpr int kTileColumns = 512;
 
 // Least-squares plane c = a + gx du + gy dv over the valid pixels of the (2 r + 1)^2 window
 // around (x, y), in differences from the centre value; `value` = a (the plane at the centre).
@@ -154,13 +146,117 @@ bool plane_fit_at_centre(const float* raw, std::size_t stride, int x, int y, int
   return std::isfinite(value);
 }
 
+// The per-pixel arithmetic of one tile, after the plane passes have left the sums. Written
+// as straight-line selects so the compiler vectorises it; kPhase / kComplementary select the
+// plan's shape at compile time instead of testing it per pixel.
+struct TileSums {
+  alignas(64) float threshold2[kTileColumns];
+  alignas(64) float contrast[kTileColumns];
+  alignas(64) float sum_sin[kTileColumns];
+  alignas(64) float sum_cos[kTileColumns];
+  alignas(64) float sum[kTileColumns];
+  alignas(64) std::uint32_t code[kTileColumns];
+  // The per-pixel results before masking; the reason is a DecodeMask as a float so that the
+  // arithmetic loop has one element width (GCC 12 then vectorises it).
+  alignas(64) float value[kTileColumns];
+  alignas(64) float q[kTileColumns];
+  alignas(64) float reason[kTileColumns];
+};
+
+struct TileConstants {
+  float period, extent_max, min_contrast, min_modulation, modulation_scale;
+};
+
+template <bool kPhase, bool kComplementary, class Pixel>
+void finish_tile(int n, TileSums& t, const Pixel* __restrict max_value, Pixel saturation, const TileConstants& k,
+                 float* __restrict coordinate, float* __restrict quality, DecodeMask* __restrict mask) {
+  constexpr float kTwoPi = 2.0f * std::numbers::pi_v<float>;
+  constexpr float kHalfPi = 0.5f * std::numbers::pi_v<float>;
+  constexpr float kThreeHalfPi = 1.5f * std::numbers::pi_v<float>;
+  // Reasons as floats: GCC 12 if-converts selects whose condition and values have one width.
+  constexpr auto kValid = static_cast<float>(DecodeMask::valid);
+  constexpr auto kSaturated = static_cast<float>(DecodeMask::saturated);
+  constexpr auto kLowContrast = static_cast<float>(DecodeMask::low_contrast);
+  constexpr auto kLowModulation = static_cast<float>(DecodeMask::low_modulation);
+  constexpr auto kOutOfRange = static_cast<float>(DecodeMask::out_of_range);
+  float* __restrict reason = t.reason;
+  float* __restrict value = t.value;
+  float* __restrict q_out = t.q;
+  for (int x = 0; x < n; ++x) reason[x] = max_value[x] >= saturation ? kSaturated : kValid;
+  for (int x = 0; x < n; ++x) {
+    const std::uint32_t h = slproto::gray_to_binary(t.code[x]);
+    const float contrast = t.contrast[x];
+    float coord;
+    float q;
+    if constexpr (kPhase) {
+      const float s = t.sum_sin[x], c = t.sum_cos[x];
+      const float phi = atan2_0_2pi(-s, c);
+      float order;
+      if constexpr (kComplementary) {
+        const auto k1 = static_cast<float>(static_cast<int>(h >> 1));
+        const auto k2 = static_cast<float>(static_cast<int>((h + 1) >> 1));
+        // K2 where phi < pi/2, K2 - 1 where phi >= 3 pi/2, else k (flat selects: GCC does
+        // not if-convert nested ones). Exact in float: orders are far below 2^24.
+        order = k1;
+        order = phi >= kThreeHalfPi ? k2 - 1.0f : order;
+        order = phi < kHalfPi ? k2 : order;
+      } else {
+        order = static_cast<float>(static_cast<int>(h));
+      }
+      coord = (phi / kTwoPi + order) * k.period;
+      q = k.modulation_scale * std::sqrt(s * s + c * c);
+    } else if constexpr (kComplementary) {
+      // Gray code alone: the centre of the half period h covers pixels [h P/2, (h+1) P/2 - 1].
+      coord = static_cast<float>(h) * 0.5f * k.period + 0.25f * k.period - 0.5f;
+      q = contrast;
+    } else {
+      coord = static_cast<float>(h) * k.period + 0.5f * k.period - 0.5f;
+      q = contrast;
+    }
+    // The first reason that applies: selects from the last reason to the first.
+    const float saturated = reason[x];
+    float m = (coord >= -0.5f) & (coord <= k.extent_max) ? kValid : kOutOfRange;
+    if constexpr (kPhase) m = q >= k.min_modulation ? m : kLowModulation;
+    m = contrast >= k.min_contrast ? m : kLowContrast;
+    m = saturated != kValid ? kSaturated : m;
+    reason[x] = m;
+    value[x] = coord;
+    q_out[x] = q;
+  }
+  // Masked pixels get NaN / 0 by masking the bits (the select form is not if-converted).
+  const std::uint32_t nan_bits = 0x7fc00000u;
+  for (int x = 0; x < n; ++x) {
+    const std::uint32_t keep = 0u - static_cast<std::uint32_t>(reason[x] == kValid);
+    std::uint32_t v, q;
+    std::memcpy(&v, &value[x], sizeof v);
+    std::memcpy(&q, &q_out[x], sizeof q);
+    v = (v & keep) | (nan_bits & ~keep);
+    q &= keep;
+    std::memcpy(&coordinate[x], &v, sizeof v);
+    std::memcpy(&quality[x], &q, sizeof q);
+  }
+  for (int x = 0; x < n; ++x) mask[x] = static_cast<DecodeMask>(static_cast<int>(reason[x]));
+}
+
+// Per-reason counts of a row of masks: one compare-and-add pass per reason (vectorised)
+// rather than a switch per pixel.
+void count_masks(const DecodeMask* __restrict mask, int n, DecodeCounts& counts) {
+  auto count = [&](DecodeMask reason) {
+    std::uint32_t c = 0;  // 32-bit: the compare-and-add vectorises without widening to 64
+    for (int x = 0; x < n; ++x) c += mask[x] == reason ? 1 : 0;
+    return c;
+  };
+  counts.valid += count(DecodeMask::valid);
+  counts.saturated += count(DecodeMask::saturated);
+  counts.low_contrast += count(DecodeMask::low_contrast);
+  counts.low_modulation += count(DecodeMask::low_modulation);
+  counts.out_of_range += count(DecodeMask::out_of_range);
+}
+
 }  // namespace
 
 template <class Pixel>
 void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& out, DecodeCounts& counts) const {
-  static tbb::enumerable_thread_specific<RowScratch> scratch_by_thread;
-  RowScratch& s = scratch_by_thread.local();
-  s.resize(width_);
   const int w = width_;
   const std::size_t plane = static_cast<std::size_t>(width_) * static_cast<std::size_t>(height_);
   const auto* planes = reinterpret_cast<const Pixel*>(store_.data());
@@ -169,137 +265,103 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
   const bool with_phase = !phase_.empty();
   const bool with_complementary = complementary_ >= 0;
   const int steps = static_cast<int>(phase_.size());
-  const float period = static_cast<float>(config.period_px);
-  const float extent_max = static_cast<float>(config.coded_extent()) - 0.5f;
-  const auto saturation = static_cast<std::uint32_t>(options_.saturation_level());
-  const float min_contrast = options_.min_contrast_dn;
-  const float min_modulation = options_.min_modulation_dn;
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  constexpr float kTwoPi = 2.0f * std::numbers::pi_v<float>;
-  constexpr float kHalfPi = 0.5f * std::numbers::pi_v<float>;
-  constexpr float kThreeHalfPi = 1.5f * std::numbers::pi_v<float>;
+  const auto saturation = static_cast<Pixel>(std::min(options_.saturation_level(), 65535));
+  const TileConstants constants{static_cast<float>(config.period_px), static_cast<float>(config.coded_extent()) - 0.5f,
+                                options_.min_contrast_dn, options_.min_modulation_dn,
+                                with_phase ? 2.0f / static_cast<float>(steps) : 0.0f};
+  const std::size_t pattern_count = plan_.size();
 
-  float* __restrict threshold2 = s.threshold2.data();
-  float* __restrict contrast = s.contrast.data();
-  float* __restrict sum_sin = s.sum_sin.data();
-  float* __restrict sum_cos = s.sum_cos.data();
-  float* __restrict sum = s.sum.data();
-  std::uint32_t* __restrict code = s.code.data();
-  std::uint32_t* __restrict max_value = s.max_value.data();
+  TileSums t;
+  alignas(64) Pixel max_value[kTileColumns];
+  float* __restrict threshold2 = t.threshold2;
+  float* __restrict contrast = t.contrast;
+  float* __restrict sum_sin = t.sum_sin;
+  float* __restrict sum_cos = t.sum_cos;
+  float* __restrict sum = t.sum;
+  std::uint32_t* __restrict code = t.code;
 
   for (int y = row_begin; y < row_end; ++y) {
     const std::size_t row_offset = static_cast<std::size_t>(y) * static_cast<std::size_t>(w);
-    auto row_of = [&](int pattern) { return planes + static_cast<std::size_t>(pattern) * plane + row_offset; };
+    for (int x0 = 0; x0 < w; x0 += kTileColumns) {
+      const int n = std::min(kTileColumns, w - x0);
+      const std::size_t offset = row_offset + static_cast<std::size_t>(x0);
+      auto tile_of = [&](int pattern) { return planes + static_cast<std::size_t>(pattern) * plane + offset; };
 
-    // Plane by plane over the row: each loop is a contiguous, vectorisable pass.
-    std::fill(max_value, max_value + w, 0u);
-    for (std::size_t p = 0; p < plan_.size(); ++p) {
-      const Pixel* __restrict in = row_of(static_cast<int>(p));
-      for (int x = 0; x < w; ++x) max_value[x] = std::max(max_value[x], static_cast<std::uint32_t>(in[x]));
-    }
-    if (with_phase) {
-      std::fill(sum_sin, sum_sin + w, 0.0f);
-      std::fill(sum_cos, sum_cos + w, 0.0f);
-      std::fill(sum, sum + w, 0.0f);
-      for (int n = 0; n < steps; ++n) {
-        const Pixel* __restrict in = row_of(phase_[static_cast<std::size_t>(n)]);
-        const float ws = phase_sin_[static_cast<std::size_t>(n)], wc = phase_cos_[static_cast<std::size_t>(n)];
-        for (int x = 0; x < w; ++x) {
-          const float v = static_cast<float>(in[x]);
-          sum_sin[x] += v * ws;
-          sum_cos[x] += v * wc;
-          sum[x] += v;
+      // Plane by plane over the tile: each loop is a contiguous, vectorisable pass.
+      {
+        const Pixel* __restrict first = tile_of(0);
+        std::copy(first, first + n, max_value);
+        for (std::size_t p = 1; p < pattern_count; ++p) {
+          const Pixel* __restrict in = tile_of(static_cast<int>(p));
+          for (int x = 0; x < n; ++x) max_value[x] = max_value[x] < in[x] ? in[x] : max_value[x];
         }
       }
-    }
-    if (with_white_black) {
-      const Pixel* __restrict white = row_of(white_);
-      const Pixel* __restrict black = row_of(black_);
-      for (int x = 0; x < w; ++x) {
-        const float wv = static_cast<float>(white[x]), bv = static_cast<float>(black[x]);
-        threshold2[x] = wv + bv;
-        contrast[x] = wv - bv;
-      }
-    } else {
-      // No white/black: the phase frames' mean is the threshold and their peak-to-peak the
-      // contrast (2 B).
-      const float two_over_n = 2.0f / static_cast<float>(steps);
-      for (int x = 0; x < w; ++x) {
-        threshold2[x] = sum[x] * two_over_n;
-        contrast[x] = 2.0f * two_over_n * std::sqrt(sum_sin[x] * sum_sin[x] + sum_cos[x] * sum_cos[x]);
-      }
-    }
-    // Gray word, most significant bit first, the complementary bit appended as the LSB.
-    std::fill(code, code + w, 0u);
-    auto add_bit = [&](int pattern) {
-      const Pixel* __restrict in = row_of(pattern);
-      for (int x = 0; x < w; ++x)
-        code[x] = (code[x] << 1) | static_cast<std::uint32_t>(2.0f * static_cast<float>(in[x]) > threshold2[x]);
-    };
-    for (int pattern : gray_) add_bit(pattern);
-    if (with_complementary) add_bit(complementary_);
-
-    float* __restrict coordinate = out.coordinate.data() + row_offset;
-    float* __restrict quality = out.quality.data() + row_offset;
-    DecodeMask* __restrict mask = out.mask.data() + row_offset;
-    const float modulation_scale = with_phase ? 2.0f / static_cast<float>(steps) : 0.0f;
-    for (int x = 0; x < w; ++x) {
-      const std::uint32_t h = slproto::gray_to_binary(code[x]);
-      float coord;
-      float q;
       if (with_phase) {
-        const float phi = atan2_0_2pi(-sum_sin[x], sum_cos[x]);
-        int order;
-        if (with_complementary) {
-          const int k = static_cast<int>(h >> 1), k2 = static_cast<int>((h + 1) >> 1);
-          order = phi < kHalfPi ? k2 : (phi >= kThreeHalfPi ? k2 - 1 : k);
-        } else {
-          order = static_cast<int>(h);
+        // Step 0 has weights sin 0 = 0, cos 0 = 1: it initialises the sums.
+        {
+          const Pixel* __restrict in = tile_of(phase_[0]);
+          const float ws = phase_sin_[0], wc = phase_cos_[0];
+          for (int x = 0; x < n; ++x) {
+            const float v = static_cast<float>(in[x]);
+            sum_sin[x] = v * ws;
+            sum_cos[x] = v * wc;
+            sum[x] = v;
+          }
         }
-        coord = (phi / kTwoPi + static_cast<float>(order)) * period;
-        q = modulation_scale * std::sqrt(sum_sin[x] * sum_sin[x] + sum_cos[x] * sum_cos[x]);
-      } else if (with_complementary) {
-        // Gray code alone: the centre of the half period h covers pixels [h P/2, (h+1) P/2 - 1].
-        coord = static_cast<float>(h) * 0.5f * period + 0.25f * period - 0.5f;
-        q = contrast[x];
+        for (int s = 1; s < steps; ++s) {
+          const Pixel* __restrict in = tile_of(phase_[static_cast<std::size_t>(s)]);
+          const float ws = phase_sin_[static_cast<std::size_t>(s)], wc = phase_cos_[static_cast<std::size_t>(s)];
+          for (int x = 0; x < n; ++x) {
+            const float v = static_cast<float>(in[x]);
+            sum_sin[x] += v * ws;
+            sum_cos[x] += v * wc;
+            sum[x] += v;
+          }
+        }
+      }
+      if (with_white_black) {
+        const Pixel* __restrict white = tile_of(white_);
+        const Pixel* __restrict black = tile_of(black_);
+        for (int x = 0; x < n; ++x) {
+          const float wv = static_cast<float>(white[x]), bv = static_cast<float>(black[x]);
+          threshold2[x] = wv + bv;
+          contrast[x] = wv - bv;
+        }
       } else {
-        coord = static_cast<float>(h) * period + 0.5f * period - 0.5f;
-        q = contrast[x];
+        // No white/black: the phase frames' mean is the threshold and their peak-to-peak the
+        // contrast (2 B).
+        const float two_over_n = 2.0f / static_cast<float>(steps);
+        for (int x = 0; x < n; ++x) {
+          threshold2[x] = sum[x] * two_over_n;
+          contrast[x] = 2.0f * two_over_n * std::sqrt(sum_sin[x] * sum_sin[x] + sum_cos[x] * sum_cos[x]);
+        }
       }
-      DecodeMask m = DecodeMask::valid;
-      if (max_value[x] >= saturation) {
-        m = DecodeMask::saturated;
-      } else if (!(contrast[x] >= min_contrast)) {
-        m = DecodeMask::low_contrast;
-      } else if (with_phase && !(q >= min_modulation)) {
-        m = DecodeMask::low_modulation;
-      } else if (!(coord >= -0.5f && coord <= extent_max)) {
-        m = DecodeMask::out_of_range;
-      }
-      mask[x] = m;
-      const bool ok = m == DecodeMask::valid;
-      coordinate[x] = ok ? coord : nan;
-      quality[x] = ok ? q : 0.0f;
-    }
-    for (int x = 0; x < w; ++x) {
-      switch (mask[x]) {
-        case DecodeMask::valid:
-          ++counts.valid;
-          break;
-        case DecodeMask::saturated:
-          ++counts.saturated;
-          break;
-        case DecodeMask::low_contrast:
-          ++counts.low_contrast;
-          break;
-        case DecodeMask::low_modulation:
-          ++counts.low_modulation;
-          break;
-        case DecodeMask::out_of_range:
-          ++counts.out_of_range;
-          break;
+      // Gray word, most significant bit first, the complementary bit appended as the LSB.
+      std::fill(code, code + n, 0u);
+      auto add_bit = [&](int pattern) {
+        const Pixel* __restrict in = tile_of(pattern);
+        for (int x = 0; x < n; ++x)
+          code[x] = (code[x] << 1) | (2.0f * static_cast<float>(in[x]) > threshold2[x] ? 1u : 0u);
+      };
+      for (int pattern : gray_) add_bit(pattern);
+      if (with_complementary) add_bit(complementary_);
+
+      float* coordinate = out.coordinate.data() + offset;
+      float* quality = out.quality.data() + offset;
+      DecodeMask* mask = out.mask.data() + offset;
+      if (with_phase) {
+        if (with_complementary)
+          finish_tile<true, true>(n, t, max_value, saturation, constants, coordinate, quality, mask);
+        else
+          finish_tile<true, false>(n, t, max_value, saturation, constants, coordinate, quality, mask);
+      } else {
+        if (with_complementary)
+          finish_tile<false, true>(n, t, max_value, saturation, constants, coordinate, quality, mask);
+        else
+          finish_tile<false, false>(n, t, max_value, saturation, constants, coordinate, quality, mask);
       }
     }
+    count_masks(out.mask.data() + row_offset, w, counts);
   }
 }
 
@@ -338,6 +400,54 @@ void ProjectorViewDecoder::finish(DecodedView& out) {
   reset();
 }
 
+namespace {
+
+// v, or +0 where v is NaN (masked), by masking the bits: a select followed by the widening to
+// double is not if-converted by GCC 12, this is.
+inline float zero_if_nan(float v) {
+  std::uint32_t bits;
+  std::memcpy(&bits, &v, sizeof bits);
+  bits &= 0u - static_cast<std::uint32_t>(v == v);
+  float out;
+  std::memcpy(&out, &bits, sizeof out);
+  return out;
+}
+
+}  // namespace
+
+// Per pixel of a row, from its window means (differences to the centre) and counts: the
+// smoothed value, and a flag where the plane fit must decide instead. A free function with
+// restrict pointers and scalars by value: as a lambda over captured references GCC 12 leaves
+// it scalar.
+template <int R>
+void choose_smoothed(int w, const float* __restrict centre, const float* __restrict means_wide,
+                     const float* __restrict means_narrow, const float* __restrict counts_wide,
+                     const float* __restrict counts_narrow, const float* __restrict modulation, float full_count,
+                     float deviation, float* __restrict result, float* __restrict needs_fit) {
+  // ~2 sigma of (5 x 5 mean - 3 x 3 mean): the phase noise of a pixel scales as 1 / B, and
+  // is ~0.05 px at B = 30 DN on the rig (8-bit sensor, 1.5 DN read noise plus shot noise).
+  constexpr float kCurvatureToleranceDnPx = 0.8f;
+  for (int x = R; x < w - R; ++x) {
+    const float c = centre[x];
+    const float mean_wide = means_wide[x], mean_narrow = means_narrow[x];
+    const float n5 = counts_wide[x], n3 = counts_narrow[x];
+    // A window mean is biased by the coordinate's curvature, in proportion to the window's
+    // second moment (4 for 5 x 5, 4/3 for 3 x 3). Where the two means differ by more than
+    // noise (the limb of a sphere, a fillet), extrapolate the bias away (Richardson:
+    // 1.5 m3 - 0.5 m5); elsewhere the 5 x 5 mean has the least noise.
+    const float b = modulation[x];
+    const float tolerance = kCurvatureToleranceDnPx / (b > 1.0f ? b : 1.0f);
+    const bool curved = R == 2 && std::fabs(mean_wide - mean_narrow) > tolerance;
+    const float wide_value = c + (curved ? 1.5f * mean_narrow - 0.5f * mean_wide : mean_wide);
+    const float narrow_value = (n3 == 9.0f) & (std::fabs(mean_narrow) <= deviation) ? c + mean_narrow : c;
+    const float full_value = std::fabs(mean_wide) <= deviation ? wide_value : narrow_value;
+    // A NaN centre leaves the window short of full, so it stays NaN here.
+    const bool full = n5 == full_count;
+    result[x] = full ? full_value : c;
+    needs_fit[x] = !full & (n5 >= 6.0f) & (c == c) ? 1.0f : 0.0f;
+  }
+}
+
 void ProjectorViewDecoder::smooth(DecodedView& out) {
   raw_coordinate_.swap(out.coordinate);
   out.coordinate.resize(raw_coordinate_.size());
@@ -345,91 +455,111 @@ void ProjectorViewDecoder::smooth(DecodedView& out) {
   const int radius = options_.smoothing_radius;
   const float max_deviation = options_.smoothing_max_deviation_px;
   const float* raw = raw_coordinate_.data();
-  // ~2 sigma of (5 x 5 mean - 3 x 3 mean): the phase noise of a pixel scales as 1 / B, and
-  // is ~0.05 px at B = 30 DN on the rig (8-bit sensor, 1.5 DN read noise plus shot noise).
-  constexpr float kCurvatureToleranceDnPx = 0.8f;
   const float* quality = out.quality.data();
   float* smoothed = out.coordinate.data();
-  struct Sums {
-    std::vector<float> wide, narrow, wide_count, narrow_count;  // counts as float: one vector type
+  // Separable window sums: per row, the column sums over the window's rows (3 and 5), then
+  // per pixel the sum of 3 or 5 column sums. Double keeps the sums of the coordinates
+  // themselves (up to ~1e3 px) exact to well below 1e-9 px, so no per-window differences to
+  // the centre are needed. Counts of valid pixels ride along the same way; masked (NaN)
+  // pixels count as 0. Each row's sums are computed from its own window only (no running
+  // sums across rows), so the result does not depend on how TBB splits the rows.
+  struct Columns {
+    std::vector<double> narrow, wide;
+    std::vector<float> narrow_count, wide_count;
+    std::vector<float> mean_wide, mean_narrow, window_count_wide, window_count_narrow;
+    std::vector<float> needs_fit;  // 1 where the plane fit decides (float: one element width)
   };
-  static tbb::enumerable_thread_specific<Sums> sums_by_thread;
+  static tbb::enumerable_thread_specific<Columns> columns_by_thread;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, options_.rows_per_task), [&](const tbb::blocked_range<int>& rows) {
-    Sums& sums = sums_by_thread.local();
+    Columns& columns = columns_by_thread.local();
     const auto uw = static_cast<std::size_t>(w);
-    sums.wide.resize(uw);
-    sums.narrow.resize(uw);
-    sums.wide_count.resize(uw);
-    sums.narrow_count.resize(uw);
-    float* __restrict wide = sums.wide.data();
-    float* __restrict narrow = sums.narrow.data();
-    float* __restrict wide_count = sums.wide_count.data();
-    float* __restrict narrow_count = sums.narrow_count.data();
+    columns.narrow.resize(uw);
+    columns.wide.resize(uw);
+    columns.narrow_count.resize(uw);
+    columns.wide_count.resize(uw);
+    columns.needs_fit.resize(uw);
+    columns.mean_wide.resize(uw);
+    columns.mean_narrow.resize(uw);
+    columns.window_count_wide.resize(uw);
+    columns.window_count_narrow.resize(uw);
+    double* __restrict col_narrow = columns.narrow.data();
+    double* __restrict col_wide = columns.wide.data();
+    float* __restrict count_narrow = columns.narrow_count.data();
+    float* __restrict count_wide = columns.wide_count.data();
+    float* __restrict needs_fit = columns.needs_fit.data();
     for (int y = rows.begin(); y < rows.end(); ++y) {
-      const float* centre = raw + static_cast<std::size_t>(y) * uw;
-      float* result = smoothed + static_cast<std::size_t>(y) * uw;
+      const float* __restrict centre = raw + static_cast<std::size_t>(y) * uw;
+      float* __restrict result = smoothed + static_cast<std::size_t>(y) * uw;
       std::copy(centre, centre + w, result);
       if (y < 1 || y >= h - 1 || w < 3) continue;
       const int r = (y >= radius && y < h - radius) ? radius : 1;
-      std::fill(wide, wide + w, 0.0f);
-      std::fill(narrow, narrow + w, 0.0f);
-      std::fill(wide_count, wide_count + w, 0.0f);
-      std::fill(narrow_count, narrow_count + w, 0.0f);
-      // Sums of (neighbour - centre): small numbers, so float keeps ~1e-6 px. NaN (masked)
-      // neighbours fail the self-comparison and are left out.
-      for (int dv = -r; dv <= r; ++dv) {
-        const float* row = raw + static_cast<std::size_t>(y + dv) * uw;
-        for (int du = -r; du <= r; ++du) {
-          const bool inner = du >= -1 && du <= 1 && dv >= -1 && dv <= 1;
-          const float* shifted = row + du;
-          if (inner) {
-            for (int x = r; x < w - r; ++x) {
-              const float value = shifted[x];
-              const bool ok = value == value;
-              const float delta = ok ? value - centre[x] : 0.0f;
-              const float one = ok ? 1.0f : 0.0f;
-              wide[x] += delta;
-              wide_count[x] += one;
-              narrow[x] += delta;
-              narrow_count[x] += one;
-            }
-          } else {
-            for (int x = r; x < w - r; ++x) {
-              const float value = shifted[x];
-              const bool ok = value == value;
-              wide[x] += ok ? value - centre[x] : 0.0f;
-              wide_count[x] += ok ? 1.0f : 0.0f;
-            }
-          }
+      {
+        const float* __restrict above = centre - uw;
+        const float* __restrict below = centre + uw;
+        for (int x = 0; x < w; ++x) {
+          const float a = above[x], c = centre[x], b = below[x];
+          col_narrow[x] = static_cast<double>(zero_if_nan(a)) + static_cast<double>(zero_if_nan(c)) +
+                          static_cast<double>(zero_if_nan(b));
+          count_narrow[x] = (a == a ? 1.0f : 0.0f) + (c == c ? 1.0f : 0.0f) + (b == b ? 1.0f : 0.0f);
         }
       }
-      const auto full_wide = static_cast<float>((2 * r + 1) * (2 * r + 1));
-      for (int x = r; x < w - r; ++x) {
-        if (!(centre[x] == centre[x])) continue;
-        const float mean_wide = wide[x] / full_wide;
-        const float mean_narrow = narrow[x] / 9.0f;
-        if (wide_count[x] == full_wide) {
-          if (std::fabs(mean_wide) <= max_deviation) {
-            // A window mean is biased by the coordinate's curvature, in proportion to the
-            // window's second moment (4 for 5 x 5, 4/3 for 3 x 3). Where the two means differ
-            // by more than noise (the limb of a sphere, a fillet), extrapolate the bias away
-            // (Richardson: 1.5 m3 - 0.5 m5); elsewhere the 5 x 5 mean has the least noise.
-            const float tolerance =
-                kCurvatureToleranceDnPx /
-                std::max(quality[static_cast<std::size_t>(y) * uw + static_cast<std::size_t>(x)], 1.0f);
-            const bool curved = r == 2 && std::fabs(mean_wide - mean_narrow) > tolerance;
-            result[x] = centre[x] + (curved ? 1.5f * mean_narrow - 0.5f * mean_wide : mean_wide);
-          } else if (narrow_count[x] == 9.0f && std::fabs(mean_narrow) <= max_deviation) {
-            result[x] = centre[x] + mean_narrow;
-          }
-        } else if (wide_count[x] >= 6.0f) {
-          // Part of the window is masked (a shadow border, an edge): a one-sided mean would
-          // be biased by the coordinate's slope, so fit a plane to the valid neighbours and
-          // take its value at the centre. Only edge pixels get here.
-          float value;
-          if (plane_fit_at_centre(raw, uw, x, y, r, value) && std::fabs(value) <= max_deviation)
-            result[x] = centre[x] + value;
+      const double* __restrict sum_wide = col_narrow;
+      const float* __restrict n_wide = count_narrow;
+      if (r == 2) {
+        const float* __restrict above = centre - 2 * uw;
+        const float* __restrict below = centre + 2 * uw;
+        for (int x = 0; x < w; ++x) {
+          const float a = above[x], b = below[x];
+          col_wide[x] = col_narrow[x] + (static_cast<double>(zero_if_nan(a)) + static_cast<double>(zero_if_nan(b)));
+          count_wide[x] = count_narrow[x] + ((a == a ? 1.0f : 0.0f) + (b == b ? 1.0f : 0.0f));
         }
+        sum_wide = col_wide;
+        n_wide = count_wide;
+      }
+      const auto full_wide = static_cast<float>((2 * r + 1) * (2 * r + 1));
+      const double inv_full_wide = 1.0 / static_cast<double>(full_wide);
+      const float* __restrict row_quality = quality + static_cast<std::size_t>(y) * uw;
+      // Two passes: the window means from the double sums (no selects), then the choice among
+      // them in float only (GCC 12 if-converts selects of one element width).
+      float* __restrict means_wide = columns.mean_wide.data();
+      float* __restrict means_narrow = columns.mean_narrow.data();
+      float* __restrict counts_wide = columns.window_count_wide.data();
+      float* __restrict counts_narrow = columns.window_count_narrow.data();
+      auto window_means = [&]<int R>() {
+        for (int x = R; x < w - R; ++x) {
+          const double s3 = col_narrow[x - 1] + col_narrow[x] + col_narrow[x + 1];
+          double s5 = s3;
+          if constexpr (R == 2)
+            s5 = sum_wide[x - 2] + sum_wide[x - 1] + sum_wide[x] + sum_wide[x + 1] + sum_wide[x + 2];
+          const auto c = static_cast<double>(centre[x]);
+          means_wide[x] = static_cast<float>(s5 * inv_full_wide - c);
+          means_narrow[x] = static_cast<float>(s3 * (1.0 / 9.0) - c);
+        }
+        for (int x = R; x < w - R; ++x) {
+          const float n3 = count_narrow[x - 1] + count_narrow[x] + count_narrow[x + 1];
+          float n5 = n3;
+          if constexpr (R == 2) n5 = n_wide[x - 2] + n_wide[x - 1] + n_wide[x] + n_wide[x + 1] + n_wide[x + 2];
+          counts_wide[x] = n5;
+          counts_narrow[x] = n3;
+        }
+      };
+      if (r == 2) {
+        window_means.template operator()<2>();
+        choose_smoothed<2>(w, centre, means_wide, means_narrow, counts_wide, counts_narrow, row_quality, full_wide,
+                           max_deviation, result, needs_fit);
+      } else {
+        window_means.template operator()<1>();
+        choose_smoothed<1>(w, centre, means_wide, means_narrow, counts_wide, counts_narrow, row_quality, full_wide,
+                           max_deviation, result, needs_fit);
+      }
+      // Part of the window is masked (a shadow border, an edge): a one-sided mean would be
+      // biased by the coordinate's slope, so fit a plane to the valid neighbours and take its
+      // value at the centre. Only edge pixels get here.
+      for (int x = r; x < w - r; ++x) {
+        if (needs_fit[x] == 0.0f) continue;
+        float value;
+        if (plane_fit_at_centre(raw, uw, x, y, r, value) && std::fabs(value) <= max_deviation)
+          result[x] = centre[x] + value;
       }
     }
   });

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -68,9 +69,19 @@ class ProjectorTriangulator {
   slproto::CodingAxis axis() const { return axis_; }
 
  private:
-  enum class Outcome : std::uint8_t { valid, no_intersection, not_converged, outside_frustum, outside_depth };
+  enum class Outcome : std::uint8_t {
+    valid,
+    not_decoded,
+    no_intersection,
+    not_converged,
+    outside_frustum,
+    outside_depth
+  };
+  // Solves n (<= a tile) consecutive pixels of a row: points, quality and validity out, and
+  // each pixel's outcome for the counts. Branch-free passes over the tile (vectorised).
   template <bool kColumns>
-  Outcome solve(float ray_x, float ray_y, float coord, Eigen::Vector3f& point) const;
+  void solve_tile(int n, const float* ray_x, const float* ray_y, const float* coord, const float* quality_in,
+                  Eigen::Vector3f* points, float* quality_out, std::uint8_t* valid, Outcome* outcome) const;
 
   std::shared_ptr<const CameraRayTable> rays_;
   slproto::PinholeModel projector_;
