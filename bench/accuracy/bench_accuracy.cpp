@@ -275,6 +275,9 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
     const ViewTruth& truth = truths.at(static_cast<std::size_t>(report.view_index));
     Json j;
     j["view"] = report.view_index;
+    j["fuse_clean_ms"] = {{"total", report.fuse_ms},      {"flying_pixels", report.flying_pixels_ms},
+                          {"fusion", report.fusion_ms},   {"denoise", report.denoise_ms},
+                          {"normals", report.normals_ms}, {"outliers", report.outliers_ms}};
     for (std::size_t s = 0; s < 2; ++s) {
       const OrganizedCloud& cloud = products.projector_clouds[s];
       Json pj = error_stats(cloud, truth).json();

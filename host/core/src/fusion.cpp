@@ -8,6 +8,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace slscan::core {
 
@@ -95,32 +96,42 @@ FlyingPixelResult remove_flying_pixels(const OrganizedCloud& cloud, const Flying
   const int w = cloud.width, h = cloud.height;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   static constexpr int kDirections[8][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}, {1, 1}, {-1, -1}, {1, -1}, {-1, 1}};
+  // Depths alone, NaN where invalid, with a 2-pixel NaN border: the inner loop then reads a
+  // dense float image with no bounds or validity branches (a NaN fails every comparison, as a
+  // missing neighbour should), 3x less memory than striding over the points.
+  const int pw = w + 4;
+  std::vector<float> depth(static_cast<std::size_t>(pw) * static_cast<std::size_t>(h + 4), nan);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 64), [&](const tbb::blocked_range<int>& rows) {
+    for (int v = rows.begin(); v < rows.end(); ++v) {
+      float* out = depth.data() + static_cast<std::size_t>(v + 2) * static_cast<std::size_t>(pw) + 2;
+      const std::size_t row = static_cast<std::size_t>(v) * static_cast<std::size_t>(w);
+      for (int u = 0; u < w; ++u) {
+        const std::size_t i = row + static_cast<std::size_t>(u);
+        out[u] = cloud.valid[i] ? cloud.points[i].z() : nan;
+      }
+    }
+  });
+  std::ptrdiff_t offsets[8];
+  for (int d = 0; d < 8; ++d) offsets[d] = kDirections[d][1] * pw + kDirections[d][0];
+  const float max_abs = options.max_abs_mm, relative = options.relative;
   tbb::combinable<FlyingPixelCounts> counts_by_thread;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rows) {
     FlyingPixelCounts& counts = counts_by_thread.local();
-    auto depth_at = [&](int u, int v, float& z) {
-      if (u < 0 || v < 0 || u >= w || v >= h) return false;
-      const std::size_t j = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
-      if (!cloud.valid[j]) return false;
-      z = cloud.points[j].z();
-      return true;
-    };
-    for (int v = rows.begin(); v < rows.end(); ++v)
+    for (int v = rows.begin(); v < rows.end(); ++v) {
+      const float* zrow = depth.data() + static_cast<std::size_t>(v + 2) * static_cast<std::size_t>(pw) + 2;
       for (int u = 0; u < w; ++u) {
-        const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
-        if (!cloud.valid[i]) continue;
+        const float z = zrow[u];
+        if (std::isnan(z)) continue;
         ++counts.input;
-        const float z = cloud.points[i].z();
+        const float* centre = zrow + u;
         // Directions are listed in opposite pairs (2 j, 2 j + 1). A point on a surface continues
         // in two independent directions; a line of mixed pixels along a straight edge is smooth
         // only along the edge, i.e. in one opposite pair.
         unsigned passing = 0;
         for (unsigned d = 0; d < 8; ++d) {
-          float z1, z2;
-          const int du = kDirections[d][0], dv = kDirections[d][1];
-          if (!depth_at(u + du, v + dv, z1) || !depth_at(u + 2 * du, v + 2 * dv, z2)) continue;
+          const float z1 = centre[offsets[d]], z2 = centre[2 * offsets[d]];
           const float step = std::fabs(z1 - z2);
-          if (std::fabs(z - (2.0f * z1 - z2)) <= options.max_abs_mm + options.relative * step) passing |= 1u << d;
+          if (std::fabs(z - (2.0f * z1 - z2)) <= max_abs + relative * step) passing |= 1u << d;
         }
         bool continues = false;
         for (unsigned pair = 0; pair < 4 && !continues; ++pair) {
@@ -128,12 +139,14 @@ FlyingPixelResult remove_flying_pixels(const OrganizedCloud& cloud, const Flying
           continues = (passing & mask) != 0 && (passing & ~mask) != 0;
         }
         if (!continues) {
+          const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
           result.cloud.points[i] = Eigen::Vector3f(nan, nan, nan);
           result.cloud.quality[i] = 0.0f;
           result.cloud.valid[i] = 0;
           ++counts.removed;
         }
       }
+    }
   });
   counts_by_thread.combine_each([&](const FlyingPixelCounts& c) {
     result.counts.input += c.input;

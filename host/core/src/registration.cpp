@@ -172,7 +172,9 @@ class JointIcp {
       Eigen::Matrix<double, 12, 1> gg = Eigen::Matrix<double, 12, 1>::Zero();
       for (const auto& c : corr) {
         Eigen::Matrix<double, 12, 1> j;
-        j << c.a.cross(c.m), c.m, -c.b.cross(c.m), -c.m;
+        // Named cross products: GCC 12 at -O3 -mavx misreads Eigen's temporaries (-Warray-bounds).
+        const Eigen::Vector3d a_cross_m = c.a.cross(c.m), b_cross_m = c.b.cross(c.m);
+        j << a_cross_m, c.m, -b_cross_m, -c.m;
         h.noalias() += j * j.transpose();
         gg += j * c.r;
         sum2 += c.r * c.r;

@@ -122,6 +122,12 @@ struct ScanReconstructor::Impl {
       view = &views.at(view_index);  // std::map: stable address
     }
     const auto start = Clock::now();
+    auto lap = start;
+    auto split = [&lap] {
+      const double ms = ms_since(lap);
+      lap = Clock::now();
+      return ms;
+    };
     std::array<OrganizedCloud, 2> clouds;
     std::array<FlyingPixelCounts, 2> flying{};
     for (std::size_t side = 0; side < 2; ++side) {
@@ -139,6 +145,7 @@ struct ScanReconstructor::Impl {
       }
       view->triangulated[side].reset();  // free the projector's cloud early
     }
+    const double flying_ms = split();
     const OrganizedCloud& left = clouds[0];
     const OrganizedCloud& right = clouds[1];
     FusionResult fused = fuse_left_right(left, right, options.fusion);
@@ -152,6 +159,7 @@ struct ScanReconstructor::Impl {
       else
         products.source[i] = l && r ? FusionSource::both : (l ? FusionSource::left : FusionSource::right);
     }
+    const double fusion_ms = split();
     TurntableDenoiseResult<OrganizedCloud> denoised;
     if (options.denoise_turntable) {
       denoised = denoise_by_turntable(fused.cloud, calibration.turntable, options.turntable_denoise);
@@ -159,18 +167,26 @@ struct ScanReconstructor::Impl {
       denoised.cloud = std::move(fused.cloud);
       denoised.counts.input = denoised.counts.kept = denoised.cloud.count_valid();
     }
+    const double denoise_ms = split();
     const std::vector<Eigen::Vector3f> normals =
         grid_normals(denoised.cloud, Eigen::Vector3f::Zero(), options.grid_normals);
     products.points = to_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index), &normals);
+    const double normals_ms = split();
     std::size_t outliers_removed = 0;
     if (options.remove_outliers && products.points.size() > static_cast<std::size_t>(options.outliers.k) + 1) {
       FilterResult filtered = statistical_outlier_removal(products.points, options.outliers);
       outliers_removed = filtered.removed;
       products.points = std::move(filtered.cloud);
     }
+    const double outliers_ms = split();
     products.cloud = std::move(denoised.cloud);
 
     std::lock_guard lock(mutex);
+    view->report.flying_pixels_ms = flying_ms;
+    view->report.fusion_ms = fusion_ms;
+    view->report.denoise_ms = denoise_ms;
+    view->report.normals_ms = normals_ms;
+    view->report.outliers_ms = outliers_ms;
     view->report.fusion = fused.counts;
     view->report.flying_pixels = {flying[0].input + flying[1].input, flying[0].removed + flying[1].removed};
     for (std::size_t side = 0; side < 2; ++side) view->report.projectors[side].flying_pixels = flying[side];

@@ -31,8 +31,8 @@ struct IcpOptions {
   std::vector<double> gates_mm{2.0, 0.5, 0.2};
   double max_normal_angle_deg = 30;  // source and target normals must agree this well
   int max_iterations_per_stage = 20;
-  double converged_rotation_deg = 1e-4;  // a stage ends when every update is below both
-  double converged_translation_mm = 1e-4;
+  double converged_rotation_deg = 5e-4;  // a stage ends when every update is below both
+  double converged_translation_mm = 5e-4;
   std::size_t source_points_per_view = 20000;  // random subsample of each view's points
   // Sources per view in the stages before the last: the wide gates only need the pose to
   // within a fraction of the next gate, which a quarter of the points gives at a quarter of

@@ -78,7 +78,8 @@ struct ViewReport {
   TurntableDenoiseCounts turntable_denoise;
   std::size_t points = 0;  // in the view's cloud after cleaning
   std::size_t outliers_removed = 0;
-  double fuse_ms = 0;
+  double fuse_ms = 0;  // all of the view's cleanup below, on its worker
+  double flying_pixels_ms = 0, fusion_ms = 0, denoise_ms = 0, normals_ms = 0, outliers_ms = 0;
 };
 
 // What a view leaves for reports and pictures (camera frame of that view).
