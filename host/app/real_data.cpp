@@ -1,11 +1,13 @@
 #include "real_data.hpp"
 
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <stdexcept>
 
 #include "slproto/calibration.hpp"
 #include "slscan/io/foreign_calibration.hpp"
@@ -61,6 +63,18 @@ int run_import(const ImportCommand& command, const Console& console) {
   if (sequence.bit_depth > 8)
     console.info("reprocess it with a config whose decode.bit_depth is " + std::to_string(sequence.bit_depth));
   return exit_ok;
+}
+
+void to_slstudio_gray_columns(std::vector<float>& coordinate, int bits_not_projected) {
+  if (bits_not_projected < 0 || bits_not_projected > 16)
+    throw std::invalid_argument("to_slstudio_gray_columns: bits_not_projected must be 0..16, got " +
+                                std::to_string(bits_not_projected));
+  const std::int64_t group = std::int64_t{1} << bits_not_projected;
+  for (float& x : coordinate) {
+    if (std::isnan(x)) continue;
+    const auto c = static_cast<std::int64_t>(std::floor(static_cast<double>(x) / static_cast<double>(group)));
+    x = static_cast<float>(c * group + (c & 1) * (group - 1));
+  }
 }
 
 core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera) {

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "run.hpp"
 #include "slscan/core/cloud_compare.hpp"
@@ -36,5 +37,15 @@ int run_compare(const CompareCommand& command, const Console& console);
 // its points by `camera` when given (points behind the camera or outside the image get no
 // pixel), else none.
 core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera);
+
+// SLStudio's Gray-code convention, to compare like with like against its reconstructions.
+// Of a Gray code whose `bits_not_projected` (s) lowest bits were not shown, a decoded prefix c
+// numbers the 2^s projector columns c 2^s ... (c + 1) 2^s - 1; our decoder returns their centre
+// (c 2^s + (2^s - 1) / 2). SLStudio's DecoderGrayCode reads the unshown bits as 0 and converts
+// that word to binary, whose low s bits all equal the parity of gray(c), i.e. c's own lowest
+// bit: it returns the column c 2^s + (c & 1) (2^s - 1), the first of the group for even c and
+// the last for odd c (for s = 1: 2c, 2c + 1, 2c + 2, 2c + 5, ... alternately half a column
+// either side of the centre). Rewrites our coordinates (NaN stays NaN) into that convention.
+void to_slstudio_gray_columns(std::vector<float>& coordinate, int bits_not_projected);
 
 }  // namespace slscan::app

@@ -109,6 +109,43 @@ TEST(StatisticalOutlierRemoval, MatchesBruteForceDefinition) {
   EXPECT_EQ(result.kept_indices, expected);
 }
 
+// A camera (f = 1000 px) looking at a tilted, gently curved surface 500 mm away, 0.01 mm noise
+// along z, with outliers pushed 3 mm off it: the grid version finds the same threshold and the
+// same points as the k-d tree version on the same points, since every pixel's 20 nearest lie
+// well inside its 7 x 7 window on a surface that faces the camera.
+TEST(StatisticalOutlierRemoval, OrganisedMatchesTheKdTreeOnASurfaceFacingTheCamera) {
+  const int w = 160, h = 120;
+  const double f = 1000;
+  slscan::core::OrganizedCloud grid;
+  grid.resize(w, h);
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> noise(0, 0.01);
+  std::vector<std::size_t> outliers;
+  for (int v = 0; v < h; ++v)
+    for (int u = 0; u < w; ++u) {
+      const std::size_t i = static_cast<std::size_t>(v * w + u);
+      const double x0 = (u - w / 2.0) / f, y0 = (v - h / 2.0) / f;
+      double z = 500 + 40 * x0 + 1e3 * x0 * x0 + noise(rng);
+      if ((u * 7 + v * 13) % 97 == 0) {
+        z += 3;
+        outliers.push_back(i);
+      }
+      grid.points[i] = Eigen::Vector3f(static_cast<float>(x0 * z), static_cast<float>(y0 * z), static_cast<float>(z));
+      grid.quality[i] = 1;
+      grid.valid[i] = (u + v) % 11 == 0 ? 0 : 1;  // a few holes, as a decoder leaves
+    }
+  const auto organised = slscan::core::statistical_outlier_removal(grid, f, {20, 2.0});
+  const PointCloud flat = slscan::core::to_point_cloud(grid, 0);
+  const auto reference = slscan::core::statistical_outlier_removal(flat, {20, 2.0});
+  EXPECT_NEAR(organised.threshold, reference.threshold, 1e-3 * reference.threshold);
+  std::size_t outliers_left = 0;
+  for (std::size_t i : outliers) outliers_left += organised.cloud.valid[i] && grid.valid[i] ? 1 : 0;
+  EXPECT_EQ(outliers_left, 0u);
+  EXPECT_EQ(organised.removed, reference.removed);
+  EXPECT_EQ(organised.cloud.count_valid(), grid.count_valid() - organised.removed);
+  EXPECT_THROW(slscan::core::statistical_outlier_removal(grid, 0.0), std::invalid_argument);
+}
+
 TEST(RadiusOutlierRemoval, MatchesBruteForceDefinition) {
   const PointCloud cloud = noisy_sphere_with_outliers(800, 40, 3);
   const double radius = 2.0;

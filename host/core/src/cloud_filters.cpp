@@ -131,6 +131,69 @@ FilterResult statistical_outlier_removal(const PointCloud& cloud, const Statisti
   return result;
 }
 
+OrganizedOutlierResult statistical_outlier_removal(const OrganizedCloud& cloud, double focal_px,
+                                                   const StatisticalOutlierOptions& options, int window_radius) {
+  if (options.k < 1) throw std::invalid_argument("statistical_outlier_removal: k must be >= 1");
+  if (!(options.std_ratio > 0)) throw std::invalid_argument("statistical_outlier_removal: std_ratio must be > 0");
+  if (!(focal_px > 0)) throw std::invalid_argument("statistical_outlier_removal: focal_px must be > 0");
+  if (window_radius < 1 || window_radius > 7)
+    throw std::invalid_argument("statistical_outlier_removal: window_radius must be in [1, 7]");
+  const int w = cloud.width, h = cloud.height;
+  const std::size_t n = static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
+  if (cloud.points.size() != n || cloud.valid.size() != n || cloud.quality.size() != n)
+    throw std::invalid_argument("statistical_outlier_removal: organised cloud buffers do not match its size");
+  const auto k = static_cast<std::size_t>(options.k);
+  const float edge_per_depth = static_cast<float>((window_radius + 1) / focal_px);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<float> mean_distance(n, nan);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
+    std::vector<float> d2;
+    d2.reserve(static_cast<std::size_t>((2 * window_radius + 1) * (2 * window_radius + 1)));
+    for (int v = rows.begin(); v < rows.end(); ++v)
+      for (int u = 0; u < w; ++u) {
+        const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
+        if (!cloud.valid[i]) continue;
+        const Eigen::Vector3f& p = cloud.points[i];
+        d2.clear();
+        for (int vv = std::max(0, v - window_radius); vv <= std::min(h - 1, v + window_radius); ++vv)
+          for (int uu = std::max(0, u - window_radius); uu <= std::min(w - 1, u + window_radius); ++uu) {
+            const std::size_t j =
+                static_cast<std::size_t>(vv) * static_cast<std::size_t>(w) + static_cast<std::size_t>(uu);
+            if (j != i && cloud.valid[j]) d2.push_back((cloud.points[j] - p).squaredNorm());
+          }
+        const float edge = edge_per_depth * std::fabs(p.z());
+        float sum = 0;
+        const std::size_t found = std::min(k, d2.size());
+        if (found < d2.size()) std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(found), d2.end());
+        for (std::size_t m = 0; m < found; ++m) sum += std::sqrt(d2[m]);
+        sum += static_cast<float>(k - found) * edge;
+        mean_distance[i] = sum / static_cast<float>(k);
+      }
+  });
+  double total = 0, total2 = 0;
+  std::size_t count = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!cloud.valid[i]) continue;
+    total += mean_distance[i];
+    total2 += static_cast<double>(mean_distance[i]) * mean_distance[i];
+    ++count;
+  }
+  OrganizedOutlierResult result;
+  result.cloud = cloud;
+  if (count < 2) return result;
+  const double mean = total / static_cast<double>(count);
+  const double variance = std::max(0.0, (total2 - total * mean) / static_cast<double>(count - 1));
+  result.threshold = mean + options.std_ratio * std::sqrt(variance);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!cloud.valid[i] || mean_distance[i] <= result.threshold) continue;
+    result.cloud.points[i] = Eigen::Vector3f(nan, nan, nan);
+    result.cloud.quality[i] = 0.0f;
+    result.cloud.valid[i] = 0;
+    ++result.removed;
+  }
+  return result;
+}
+
 FilterResult radius_outlier_removal(const PointCloud& cloud, const RadiusOutlierOptions& options) {
   if (!(options.radius_mm > 0)) throw std::invalid_argument("radius_outlier_removal: radius_mm must be > 0");
   if (options.min_neighbors < 0) throw std::invalid_argument("radius_outlier_removal: min_neighbors must be >= 0");

@@ -168,17 +168,18 @@ struct ScanReconstructor::Impl {
       denoised.counts.input = denoised.counts.kept = denoised.cloud.count_valid();
     }
     const double denoise_ms = split();
+    std::size_t outliers_removed = 0;
+    if (options.remove_outliers) {
+      OrganizedOutlierResult filtered =
+          statistical_outlier_removal(denoised.cloud, calibration.camera.fx, options.outliers);
+      outliers_removed = filtered.removed;
+      denoised.cloud = std::move(filtered.cloud);
+    }
+    const double outliers_ms = split();
     const std::vector<Eigen::Vector3f> normals =
         grid_normals(denoised.cloud, Eigen::Vector3f::Zero(), options.grid_normals);
     products.points = to_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index), &normals);
     const double normals_ms = split();
-    std::size_t outliers_removed = 0;
-    if (options.remove_outliers && products.points.size() > static_cast<std::size_t>(options.outliers.k) + 1) {
-      FilterResult filtered = statistical_outlier_removal(products.points, options.outliers);
-      outliers_removed = filtered.removed;
-      products.points = std::move(filtered.cloud);
-    }
-    const double outliers_ms = split();
     products.cloud = std::move(denoised.cloud);
 
     std::lock_guard lock(mutex);

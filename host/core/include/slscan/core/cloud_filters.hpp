@@ -35,6 +35,24 @@ struct StatisticalOutlierOptions {
 // the cloud-wide mean of that quantity by more than std_ratio standard deviations.
 FilterResult statistical_outlier_removal(const PointCloud& cloud, const StatisticalOutlierOptions& options = {});
 
+// The same statistic on an organised cloud (one view), with the neighbours taken from the
+// image grid instead of a k-d tree: the k nearest (3-D distance) among the valid pixels of the
+// (2 window_radius + 1)^2 window. Points within 3-D distance d of a point project within
+// d f / z pixels of it, so where the window covers that reach (a surface facing the camera:
+// the 20 nearest lie within ~2.5 px) this is exactly the k-d tree's answer; where it does not
+// (grazing surfaces, specks with fewer than k valid pixels in the window) each missing
+// neighbour counts at the window's edge, (window_radius + 1) z / focal_px, about the lower
+// bound of its true distance, so where it differs from the k-d tree it errs toward keeping.
+// No tree. Invalidates the removed slots.
+struct OrganizedOutlierResult {
+  OrganizedCloud cloud;
+  std::size_t removed = 0;
+  double threshold = 0;
+};
+OrganizedOutlierResult statistical_outlier_removal(const OrganizedCloud& cloud, double focal_px,
+                                                   const StatisticalOutlierOptions& options = {},
+                                                   int window_radius = 3);
+
 struct RadiusOutlierOptions {
   double radius_mm = 0.5;
   int min_neighbors = 5;  // besides the point itself

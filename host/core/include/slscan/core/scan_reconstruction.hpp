@@ -39,8 +39,8 @@ struct ReconstructionOptions {
   GridNormalOptions grid_normals;
   bool register_views = true;  // false: coarse turntable poses only
   RegistrationOptions registration;
-  // Statistical outlier removal on each view's cloud, on the worker that fused it (so it runs
-  // while the next view streams in, not after the last frame).
+  // Statistical outlier removal on each view's organised cloud, neighbours from the image grid
+  // (cloud_filters.hpp), on the worker that fused it: it runs while the next view streams in.
   bool remove_outliers = true;
   StatisticalOutlierOptions outliers;
   double voxel_mm = 0;  // > 0: thin the merged model to one point per voxel
