@@ -85,6 +85,8 @@ void apply_config(const json& config, core::ReconstructionOptions& o) {
       .read("max_normal_angle_deg", o.registration.icp.max_normal_angle_deg)
       .read("source_points_per_view", o.registration.icp.source_points_per_view)
       .read("close_loop", o.registration.close_loop)
+      .read("turntable_prior_deg", o.registration.turntable_prior_deg)
+      .read("turntable_prior_mm", o.registration.turntable_prior_mm)
       .finish();
   if (mode == "joint")
     o.registration.mode = core::RefinementMode::joint;
@@ -150,7 +152,9 @@ json config_to_json(const core::ReconstructionOptions& o) {
         {"gates_mm", o.registration.icp.gates_mm},
         {"max_normal_angle_deg", o.registration.icp.max_normal_angle_deg},
         {"source_points_per_view", o.registration.icp.source_points_per_view},
-        {"close_loop", o.registration.close_loop}}},
+        {"close_loop", o.registration.close_loop},
+        {"turntable_prior_deg", o.registration.turntable_prior_deg},
+        {"turntable_prior_mm", o.registration.turntable_prior_mm}}},
       {"outliers", {{"enabled", o.remove_outliers}, {"k", o.outliers.k}, {"std_ratio", o.outliers.std_ratio}}},
       {"model", {{"voxel_mm", o.voxel_mm}, {"normal_neighbors", o.normal_neighbors}}},
       {"mesh",

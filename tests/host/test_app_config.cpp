@@ -10,11 +10,13 @@ using nlohmann::json;
 TEST(AppConfig, AppliesValuesAndRoundTrips) {
   core::ReconstructionOptions options;
   apply_config(json::parse(R"({"fusion": {"agreement_mm": 0.35}, "registration": {"mode": "sequential",
-      "gates_mm": [1.0, 0.3]}, "mesh": {"enabled": false}, "model": {"voxel_mm": 0.2}})"),
+      "gates_mm": [1.0, 0.3], "turntable_prior_deg": 0.2}, "mesh": {"enabled": false}, "model": {"voxel_mm": 0.2}})"),
                options);
   EXPECT_FLOAT_EQ(options.fusion.agreement_mm, 0.35f);
   EXPECT_EQ(options.registration.mode, core::RefinementMode::sequential);
   EXPECT_EQ(options.registration.icp.gates_mm, (std::vector<double>{1.0, 0.3}));
+  EXPECT_DOUBLE_EQ(options.registration.turntable_prior_deg, 0.2);
+  EXPECT_DOUBLE_EQ(options.registration.turntable_prior_mm, 0.05);  // untouched: the default
   EXPECT_FALSE(options.build_mesh);
   EXPECT_DOUBLE_EQ(options.voxel_mm, 0.2);
   // What a report records can be fed back and gives the same parameters.
