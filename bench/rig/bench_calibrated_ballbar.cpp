@@ -1,10 +1,12 @@
-// End to end with the ESTIMATED calibration (issue 5): the small virtual rig (640 x 512,
-// default noise) is calibrated from a simulated calibration capture (the poses of
-// tests/host/test_calibration_rig.cpp), then the ball-bar scene is reconstructed through
-// ScanReconstructor (the scan's code path) once with that calibration and once with the rig's
-// ground-truth calibration, and the ball bar is measured in both models.
-// Run: build/<dir>/bench/rig/bench_calibrated_ballbar   (about a minute of CPU; small rig only:
-// a full-resolution calibration capture is 800 frames of 5 Mpx)
+// End to end with the ESTIMATED calibration (issue 5): the virtual rig (default noise) is
+// calibrated from a simulated calibration capture (slrig::calibration_poses, the poses of
+// tests/host/test_calibration_rig.cpp), the calibration is compared with the rig's truth, then
+// the ball-bar scene is reconstructed through ScanReconstructor (the scan's code path) once with
+// that calibration and once with the rig's ground-truth calibration, and the bar is measured in
+// both models.
+// Run: build/<dir>/bench/rig/bench_calibrated_ballbar [--size small|full]
+//   small (640 x 512, default): about a minute of CPU. full (2464 x 2056): the calibration
+//   capture is 766 frames of 5 Mpx (3.9 GB in memory), several minutes.
 #include <array>
 #include <chrono>
 #include <cstdio>
@@ -12,92 +14,19 @@
 #include <numbers>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "slrig/rig.hpp"
 #include "slscan/core/calibration_rig.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
+#include "virtual_calibration.hpp"
 
 namespace {
 
 using slproto::ProjectorSide;
-using slproto::RigidTransform;
-using slproto::Vec3;
 using Clock = std::chrono::steady_clock;
-
-RigidTransform rotation(const Vec3& axis, double deg) {
-  return RigidTransform::rotation_about_axis(axis, {0, 0, 0}, deg * std::numbers::pi / 180.0);
-}
-
-cv::Mat render_frame(const slrig::ViewRenderer& renderer, ProjectorSide side, const slproto::PatternPlan& plan,
-                     std::size_t index) {
-  cv::Mat image(renderer.height(), renderer.width(), CV_8UC1);
-  renderer.render(side, plan, index, std::span<std::uint8_t>(image.data, renderer.frame_bytes()));
-  return image;
-}
-
-// Free poses in front of the rig and six turntable angles, as the calibration test.
-slscan::core::CalibrationCapture calibration_capture(slrig::Scene scene) {
-  using slscan::core::CalibrationFrame;
-  scene.turntable.angle_error_sigma_deg = 0.05;
-  const slrig::SceneObject board = scene.objects.at(0);
-  scene.objects.clear();
-  slscan::core::CalibrationCapture capture;
-  capture.target = {board.squares_x, board.squares_y, board.square_mm, board.thickness};
-  capture.pattern_plan = scene.pattern_plan;
-  capture.platform_radius_mm = scene.turntable.platform_radius_mm;
-  capture.source = "virtual rig, calibration preset (small), bench_calibrated_ballbar";
-  const std::array<slproto::PatternPlan, 2> plans{capture.plan(slproto::CodingAxis::columns),
-                                                  capture.plan(slproto::CodingAxis::rows)};
-  const Vec3 middle{(board.squares_x - 2) * board.square_mm / 2, (board.squares_y - 2) * board.square_mm / 2, 0};
-  const std::vector<std::array<double, 6>> free_poses{// tilt x, tilt y, spin, offset x, offset y, distance
-                                                      {25, 0, 5, -20, -10, 440},     {-25, 0, -5, 15, -15, 460},
-                                                      {0, 30, 10, 20, -5, 450},      {0, -30, -10, -15, -20, 470},
-                                                      {20, 20, 0, 0, -10, 430},      {-20, -20, 15, 10, -5, 480},
-                                                      {20, -25, -15, -25, -15, 460}, {-25, 20, 20, 25, -10, 445},
-                                                      {10, 35, 0, 0, -20, 490},      {-35, -10, -20, 5, -5, 435}};
-  for (std::size_t p = 0; p < free_poses.size(); ++p) {
-    const auto& a = free_poses[p];
-    RigidTransform cam_from_board = rotation({1, 0, 0}, a[0]) * rotation({0, 1, 0}, a[1]) * rotation({0, 0, 1}, a[2]);
-    const Vec3 m = cam_from_board.rotate(middle);
-    cam_from_board.t = {a[3] - m[0], a[4] - m[1], a[5] - m[2]};
-    slrig::Scene view_scene = scene;
-    slrig::SceneObject held = board;
-    held.on_turntable = false;
-    held.table_from_object = cam_from_board;
-    view_scene.objects.push_back(held);
-    const int pose = static_cast<int>(capture.poses.size());
-    capture.poses.push_back({"free " + std::to_string(p), false, 0});
-    for (std::size_t axis = 0; axis < 2; ++axis) {
-      view_scene.pattern_plan = plans[axis].config();
-      const slrig::ViewRenderer renderer(view_scene, 0.0, static_cast<int>(2 * p + axis));
-      for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right})
-        for (std::size_t i = 0; i < plans[axis].size(); ++i)
-          capture.frames.push_back({pose, CalibrationFrame::Kind::pattern, side, plans[axis].config().axis, i,
-                                    render_frame(renderer, side, plans[axis], i)});
-    }
-  }
-  RigidTransform table_from_board = rotation({0, 0, 1}, 15) * rotation({1, 0, 0}, 180);
-  const Vec3 m = table_from_board.rotate(middle);
-  table_from_board.t = {25 - m[0], -10 - m[1], board.thickness - m[2]};
-  slrig::Scene table_scene = scene;
-  slrig::SceneObject lying = board;
-  lying.table_from_object = table_from_board;
-  table_scene.objects.push_back(lying);
-  for (int k = 0; k < 6; ++k) {
-    const double angle = 60.0 * k;
-    const slrig::ViewRenderer renderer(table_scene, angle, 100 + k);
-    const int pose = static_cast<int>(capture.poses.size());
-    capture.poses.push_back({"table " + std::to_string(static_cast<int>(angle)), true, angle});
-    cv::Mat both;
-    cv::addWeighted(render_frame(renderer, ProjectorSide::left, plans[0], 0), 0.5,
-                    render_frame(renderer, ProjectorSide::right, plans[0], 0), 0.5, 0.0, both);
-    capture.frames.push_back(
-        {pose, CalibrationFrame::Kind::camera, ProjectorSide::left, slproto::CodingAxis::columns, 0, both});
-  }
-  return capture;
-}
 
 slscan::core::BallBarResult scan_ball_bar(const slrig::Scene& scene, const slproto::RigCalibration& calibration) {
   const slproto::PatternPlan plan(calibration.pattern_plan);
@@ -133,14 +62,43 @@ slscan::core::BallBarResult scan_ball_bar(const slrig::Scene& scene, const slpro
 
 }  // namespace
 
-int main() try {
+int main(int argc, char** argv) try {
+  slrig::RigSize size = slrig::RigSize::small;
+  for (int i = 1; i < argc; ++i) {
+    const std::string_view arg = argv[i];
+    if (arg == "--size" && i + 1 < argc && std::string_view(argv[i + 1]) == "full") {
+      size = slrig::RigSize::full;
+      ++i;
+    } else if (arg == "--size" && i + 1 < argc && std::string_view(argv[i + 1]) == "small") {
+      ++i;
+    } else {
+      std::fprintf(stderr, "usage: bench_calibrated_ballbar [--size small|full]\n");
+      return 2;
+    }
+  }
+  const char* size_name = size == slrig::RigSize::full ? "full" : "small";
   const auto t0 = Clock::now();
-  const slrig::Scene calibration_scene = slrig::scene_preset("calibration", slrig::RigSize::small).value();
-  const auto calibrated = slscan::core::calibrate_rig(calibration_capture(calibration_scene));
+  const slrig::Scene calibration_scene = slrig::scene_preset("calibration", size).value();
+  const auto capture = slscan::app::render_virtual_calibration_capture(
+      calibration_scene, std::string("virtual rig, calibration preset (") + size_name + "), bench_calibrated_ballbar");
+  const auto t_render = Clock::now();
+  const auto calibrated = slscan::core::calibrate_rig(capture.capture);
   std::printf("%s", calibrated.report.summary().c_str());
+  std::printf("\nagainst the rig's truth (%s rig):\n%s\n", size_name,
+              slscan::app::calibration_errors(calibrated, capture).table().c_str());
   const auto t1 = Clock::now();
+  {
+    // The same capture without the final joint refinement (separate solves only), for comparison.
+    slscan::core::CalibrationOptions separate;
+    separate.joint_refinement = false;
+    const auto without = slscan::core::calibrate_rig(capture.capture, separate);
+    std::printf("without the joint refinement (separate solves):\n%s\n",
+                slscan::app::calibration_errors(without, capture).table().c_str());
+  }
+  std::printf("render %.1f s, calibrate %.1f s (wall)\n", std::chrono::duration<double>(t_render - t0).count(),
+              std::chrono::duration<double>(t1 - t_render).count());
 
-  const slrig::Scene scene = slrig::scene_preset("ballbar", slrig::RigSize::small).value();
+  const slrig::Scene scene = slrig::scene_preset("ballbar", size).value();
   const slrig::SceneObject& bar = scene.objects.at(0);
   struct Run {
     const char* name;

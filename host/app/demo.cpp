@@ -14,6 +14,7 @@
 #include <sstream>
 #include <thread>
 
+#include "calibrate.hpp"
 #include "run.hpp"
 #include "slproto/calibration.hpp"
 #include "slrig/rig.hpp"
@@ -155,11 +156,22 @@ int run_demo(const DemoCommand& command, const Console& console) {
   auto scene = slrig::scene_preset(command.scene, command.small ? slrig::RigSize::small : slrig::RigSize::full);
   if (!scene) throw std::invalid_argument(scene.error().message);
 
-  // The calibration: the virtual rig's exact one, said plainly in the report.
+  // The calibration: estimated from the virtual rig's calibration capture (checkerboard at ten
+  // free poses and six table angles, docs/calibration.md), as on a real rig; or, on request,
+  // the rig's exact one, said plainly in the report.
   const std::string calibration_path = (out / "calibration.json").string();
-  if (auto status = slproto::save_calibration(calibration_path, slrig::ground_truth_calibration(*scene)); !status)
-    throw io::IoError(status.error().message);
-  console.info("calibration: the virtual rig's ground truth -> " + calibration_path);
+  if (command.true_calibration) {
+    if (auto status = slproto::save_calibration(calibration_path, slrig::ground_truth_calibration(*scene)); !status)
+      throw io::IoError(status.error().message);
+    console.info("calibration: the virtual rig's ground truth -> " + calibration_path);
+  } else {
+    CalibrateCommand calibrate;
+    calibrate.virtual_rig = command.small ? "small" : "full";
+    calibrate.output_path = calibration_path;
+    calibrate.report_path = (out / "calibration_report.json").string();
+    Console calibration_console = console;
+    if (const int rc = run_calibrate(calibrate, calibration_console); rc != exit_ok) return rc;
+  }
 
   const std::string board_path = (out / "board.toml").string();
   io::write_file_atomically(

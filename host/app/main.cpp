@@ -2,6 +2,7 @@
 #include <CLI/CLI.hpp>
 #include <iostream>
 
+#include "calibrate.hpp"
 #include "real_data.hpp"
 #include "run.hpp"
 #include "slscan/io/ply.hpp"
@@ -69,6 +70,23 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   measure_cmd->add_flag("--json", measure.json, "Print the figures as JSON");
 
+  CalibrateCommand calibrate;
+  auto* calibrate_cmd =
+      app.add_subcommand("calibrate", "Calibrate camera, projectors and turntable from a calibration capture");
+  calibrate_cmd->add_option("capture", calibrate.capture_dir, "Calibration capture folder (manifest.json + PNGs)")
+      ->check(CLI::ExistingDirectory);
+  calibrate_cmd->add_option("--out", calibrate.output_path, "Calibration file to write (JSON)")->required();
+  calibrate_cmd->add_option("--report", calibrate.report_path, "Also write the calibration report (JSON)");
+  calibrate_cmd->add_flag("--no-turntable", calibrate.no_turntable, "Camera and projectors only");
+#ifdef SLSCAN_WITH_DEMO
+  calibrate_cmd
+      ->add_option("--virtual", calibrate.virtual_rig,
+                   "Render the virtual rig's calibration capture (small or full) instead of reading one")
+      ->check(CLI::IsMember({"small", "full"}));
+  calibrate_cmd->add_option("--write-capture", calibrate.write_capture_dir,
+                            "With --virtual: also write the rendered capture folder");
+#endif
+
   ImportCommand import;
   auto* import_cmd = app.add_subcommand(
       "import", "Turn another scanner's images, sequence description and calibration into a capture");
@@ -107,6 +125,8 @@ int main(int argc, char** argv) {
   demo_cmd->add_option("--scene", demo.scene, "ballbar, sphere, plane, blade or teacup")->capture_default_str();
   demo_cmd->add_option("--out", demo.output_dir, "Output folder")->capture_default_str();
   demo_cmd->add_flag("--small", demo.small, "The 640 x 512 rig: a quick run");
+  demo_cmd->add_flag("--true-calibration", demo.true_calibration,
+                     "Scan with the rig's exact calibration instead of calibrating it first");
   demo_cmd->add_option("--config", demo.config_path, "Reconstruction parameters (JSON)")->check(CLI::ExistingFile);
   demo_cmd->add_option("--slscand", demo.slscand_path, "slscand executable")->check(CLI::ExistingFile);
   demo_cmd->add_option("--board", demo.board_path, "Sim board file to start from")->check(CLI::ExistingFile);
@@ -122,6 +142,7 @@ int main(int argc, char** argv) {
       return run_scan(scan, console);
     }
     if (*import_cmd) return run_import(import, console);
+    if (*calibrate_cmd) return run_calibrate(calibrate, console);
     if (*compare_cmd) return run_compare(compare, console);
 #ifdef SLSCAN_WITH_DEMO
     if (*demo_cmd) return run_demo(demo, console);

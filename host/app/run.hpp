@@ -80,7 +80,8 @@ int run_measure(const MeasureCommand& command, const Console& console);
 struct DemoCommand {
   std::string scene = "ballbar";
   std::string output_dir = "out";
-  bool small = false;  // the 640 x 512 rig (fast) instead of the full 2464 x 2056
+  bool small = false;             // the 640 x 512 rig (fast) instead of the full 2464 x 2056
+  bool true_calibration = false;  // use the rig's exact calibration instead of calibrating it first
   std::string config_path;
   std::string slscand_path;  // default: next to slscan in the build tree
   std::string board_path;    // default: boards/sim.toml of the source tree

@@ -356,6 +356,25 @@ Result<RigCalibration> parse_calibration(std::string_view text, std::string_view
   return cal;
 }
 
+std::string format_pattern_plan(const PatternPlanConfig& config) { return to_json_plan(config).dump(); }
+
+Result<PatternPlanConfig> parse_pattern_plan(std::string_view json_text, std::string_view origin) {
+  const std::string where(origin);
+  PatternPlanConfig config;
+  try {
+    const json doc = json::parse(json_text);
+    if (!doc.is_object()) return make_error(Errc::malformed, where + ": expected a JSON object");
+    config = Reader{where}.plan(doc, "");
+  } catch (const std::exception& e) {
+    std::string msg = e.what();
+    if (!msg.empty() && msg[0] == '.') msg.erase(0, 1);
+    return make_error(Errc::malformed, where + ": " + msg);
+  }
+  if (auto status = config.check(); !status)
+    return make_error(status.error().code, where + ": " + status.error().message);
+  return config;
+}
+
 Result<RigCalibration> load_calibration(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return make_error(Errc::io_error, path + ": cannot open (" + std::strerror(errno) + ")");

@@ -60,9 +60,12 @@ CornerDetection detect_checkerboard(const cv::Mat& image, const CheckerboardTarg
         nearest = std::min(nearest, cv::norm(corners[i + static_cast<std::size_t>(target.inner_x())] - corners[i]));
     }
     const int w = std::clamp(static_cast<int>(0.35 * nearest), 2, options.subpixel_half_window);
-    cv::Mat smooth = grey;
+    // A new buffer for the blur: `grey` may be the caller's own image.
+    cv::Mat smooth;
     if (options.subpixel_smoothing_sigma > 0)
       cv::GaussianBlur(grey, smooth, cv::Size(0, 0), options.subpixel_smoothing_sigma);
+    else
+      smooth = grey;
     cv::cornerSubPix(smooth, corners, cv::Size(w, w), cv::Size(-1, -1),
                      cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
   }

@@ -255,7 +255,33 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
       report.poses[proj_pose[s][i]].projector_rms_px[s] = solve.view_rms_px[i];
   }
 
-  // 4. Turntable.
+  // 4. The whole rig at once (refine_rig_jointly): the projectors' precise corners pin the
+  // target poses and through them the camera's intrinsics.
+  if (options.joint_refinement) {
+    std::vector<std::size_t> camera_view_of_pose(capture.poses.size(), 0);
+    for (std::size_t i = 0; i < camera_pose.size(); ++i) camera_view_of_pose[camera_pose[i]] = i;
+    std::array<ProjectorObservations, 2> observations;
+    for (std::size_t s = 0; s < 2; ++s) {
+      observations[s].views = proj_views[s];
+      observations[s].start = cal.projectors[s];
+      for (std::size_t p : proj_pose[s]) observations[s].camera_view.push_back(camera_view_of_pose[p]);
+    }
+    const RigBundle bundle = refine_rig_jointly(capture.target, camera, camera_views, observations, options.camera_lens,
+                                                options.projector_lens);
+    cal.camera = bundle.camera.model;
+    cal.camera_reprojection_rms_px = bundle.camera.rms_px;
+    report.camera_rms_px = bundle.camera.rms_px;
+    for (std::size_t i = 0; i < camera_views.size(); ++i)
+      report.poses[camera_pose[i]].camera_rms_px = bundle.camera.view_rms_px[i];
+    for (std::size_t s = 0; s < 2; ++s) {
+      cal.projectors[s] = bundle.projectors[s];
+      report.projector_rms_px[s] = bundle.projectors[s].reprojection_rms_px;
+      for (std::size_t i = 0; i < proj_pose[s].size(); ++i)
+        report.poses[proj_pose[s][i]].projector_rms_px[s] = bundle.projector_view_rms_px[s][i];
+    }
+  }
+
+  // 5. Turntable.
   cal.turntable.platform_radius_mm = capture.platform_radius_mm;
   if (options.turntable) {
     if (static_cast<int>(table_views.size()) < options.min_turntable_views)
@@ -263,7 +289,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
                                " turntable poses, at least " + std::to_string(options.min_turntable_views) +
                                " are needed (6 recommended)" + skipped_text());
     const TurntableSolve table =
-        calibrate_turntable(capture.target, camera.model, table_views, capture.platform_radius_mm);
+        calibrate_turntable(capture.target, cal.camera, table_views, capture.platform_radius_mm);
     cal.turntable = table.calibration;
     report.turntable_rms_px = table.rms_px;
     report.target_tilt_deg = table.target_tilt_deg;

@@ -107,6 +107,11 @@ Result<RigCalibration> load_calibration(const std::string& path);
 // Writes to path.tmp then renames, so a crash never leaves a half-written file.
 Status save_calibration(const std::string& path, const RigCalibration& calibration);
 
+// The pattern plan alone, as the calibration file writes it (a JSON object): capture manifests
+// and other files that record a plan use the same layout. Parsing validates (check()).
+std::string format_pattern_plan(const PatternPlanConfig& config);
+Result<PatternPlanConfig> parse_pattern_plan(std::string_view json_text, std::string_view origin = "pattern_plan");
+
 // Writes `bytes` to path atomically (temporary file in the same directory, fsync, rename).
 Status write_file_atomically(const std::string& path, std::string_view bytes);
 

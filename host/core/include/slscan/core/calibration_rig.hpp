@@ -66,6 +66,10 @@ struct CalibrationOptions {
   int min_projector_views = 6;
   int min_turntable_views = 3;  // 6 recommended: every scan angle
   bool turntable = true;        // false: no turntable poses expected (camera and projectors only)
+  // A final bundle adjustment of camera, projectors and target poses together
+  // (refine_rig_jointly); false keeps the separate solves (camera alone, then each projector
+  // with the camera fixed).
+  bool joint_refinement = true;
   std::string created_by = "slscan calibrate";
 };
 

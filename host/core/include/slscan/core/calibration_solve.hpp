@@ -8,6 +8,7 @@
 // std::runtime_error.
 #pragma once
 
+#include <array>
 #include <string>
 #include <vector>
 
@@ -50,6 +51,27 @@ ProjectorSolve calibrate_projector(const CheckerboardTarget& target, const slpro
                                    const std::vector<TargetView>& camera_views,
                                    const std::vector<TargetView>& projector_views, int projector_width,
                                    int projector_height, const LensModelOptions& lens = {}, int min_views = 3);
+
+// The final bundle adjustment of the whole rig: the camera's intrinsics, both projectors'
+// intrinsics and extrinsics and every target pose against every corner of every device at once.
+// The separate solves above hold the camera fixed while fitting the projectors; here the
+// projectors' corners (many decoded pixels each, so several times more precise than the
+// camera's) also pin the target poses, and through them the camera's principal point and focal
+// length. Each device's residuals are weighted by the inverse of its RMS from the separate solve.
+struct ProjectorObservations {
+  std::vector<std::size_t> camera_view;  // index into the camera views of each projector view
+  std::vector<TargetView> views;         // the corners' projector coordinates
+  slproto::ProjectorCalibration start;   // from calibrate_projector
+};
+struct RigBundle {
+  DeviceCalibration camera;                                 // refined model, RMS, per-view RMS and poses
+  std::array<slproto::ProjectorCalibration, 2> projectors;  // refined intrinsics, cam_from_proj, RMS
+  std::array<std::vector<double>, 2> projector_view_rms_px;
+};
+RigBundle refine_rig_jointly(const CheckerboardTarget& target, const DeviceCalibration& camera,
+                             const std::vector<TargetView>& camera_views,
+                             const std::array<ProjectorObservations, 2>& projectors,
+                             const LensModelOptions& camera_lens, const LensModelOptions& projector_lens);
 
 // The turntable: the target lies on the platform and is seen at several table angles.
 struct TurntableView {

@@ -1,0 +1,110 @@
+#include "calibrate.hpp"
+
+#include <cstdio>
+#include <nlohmann/json.hpp>
+#include <optional>
+
+#include "slproto/calibration.hpp"
+#include "slscan/io/calibration_capture_files.hpp"
+#include "slscan/io/ply.hpp"
+#ifdef SLSCAN_WITH_DEMO
+#include "slrig/rig.hpp"
+#include "virtual_calibration.hpp"
+#endif
+
+namespace slscan::app {
+
+using json = nlohmann::json;
+
+std::string calibration_report_json(const core::CalibrationReport& report) {
+  json poses = json::array();
+  for (const core::PoseReport& p : report.poses)
+    poses.push_back({{"name", p.name},
+                     {"on_turntable", p.on_turntable},
+                     {"table_angle_deg", p.table_angle_deg},
+                     {"board_found", p.board_found},
+                     {"camera_rms_px", p.camera_rms_px},
+                     {"projector_corners", p.projector_corners},
+                     {"projector_rms_px", p.projector_rms_px},
+                     {"local_fit_rms_px", p.local_fit_rms_px}});
+  json skipped = json::array();
+  for (const core::SkippedImage& s : report.skipped)
+    skipped.push_back({{"pose", s.pose}, {"what", s.what}, {"reason", s.reason}});
+  json steps = json::array();
+  for (const core::TurntableStep& t : report.turntable)
+    steps.push_back({{"pose", t.pose},
+                     {"commanded_deg", t.commanded_deg},
+                     {"measured_deg", t.measured_deg},
+                     {"step_deg", t.step_deg},
+                     {"residual_mm", t.residual_mm},
+                     {"reprojection_px", t.reprojection_px},
+                     {"corner_order_reversed", t.corner_order_reversed}});
+  return json{{"camera_views", report.camera_views},
+              {"camera_rms_px", report.camera_rms_px},
+              {"projector_views", report.projector_views},
+              {"projector_rms_px", report.projector_rms_px},
+              {"turntable_rms_px", report.turntable_rms_px},
+              {"target_tilt_deg", report.target_tilt_deg},
+              {"poses", poses},
+              {"skipped", skipped},
+              {"turntable", steps}}
+      .dump(1);
+}
+
+int run_calibrate(const CalibrateCommand& command, const Console& console) {
+  core::CalibrationCapture capture;
+  core::CalibrationOptions options;
+  options.turntable = !command.no_turntable;
+#ifdef SLSCAN_WITH_DEMO
+  std::optional<VirtualCalibrationCapture> rendered;
+#endif
+  if (!command.virtual_rig.empty()) {
+#ifdef SLSCAN_WITH_DEMO
+    if (!command.capture_dir.empty())
+      throw std::invalid_argument("calibrate: give a capture folder or --virtual, not both");
+    if (command.virtual_rig != "small" && command.virtual_rig != "full")
+      throw std::invalid_argument("calibrate: --virtual takes \"small\" or \"full\", not \"" + command.virtual_rig +
+                                  "\"");
+    const auto size = command.virtual_rig == "full" ? slrig::RigSize::full : slrig::RigSize::small;
+    console.info("rendering the virtual rig's calibration capture (" + command.virtual_rig + ")");
+    rendered = render_virtual_calibration_capture(slrig::scene_preset("calibration", size).value(),
+                                                  "virtual rig, calibration preset (" + command.virtual_rig + ")");
+    capture = rendered->capture;
+    if (!command.write_capture_dir.empty()) {
+      io::write_calibration_capture(capture, command.write_capture_dir);
+      console.info("wrote the capture to " + command.write_capture_dir);
+    }
+#else
+    throw std::invalid_argument("calibrate: --virtual needs a build with the virtual rig");
+#endif
+  } else {
+    if (command.capture_dir.empty()) throw std::invalid_argument("calibrate: no capture folder given");
+    capture = io::read_calibration_capture(command.capture_dir);
+    console.info("read " + std::to_string(capture.frames.size()) + " frames of " +
+                 std::to_string(capture.poses.size()) + " poses from " + command.capture_dir);
+  }
+  core::RigCalibrationResult result;
+  try {
+    result = core::calibrate_rig(capture, options);
+  } catch (const std::runtime_error& e) {
+    // Too few usable poses: the message names the counts and every skipped image.
+    console.warn(std::string("calibration failed: ") + e.what());
+    return exit_bad_input;
+  }
+  if (!console.quiet) std::fputs(result.report.summary().c_str(), stdout);
+#ifdef SLSCAN_WITH_DEMO
+  if (rendered && !console.quiet)
+    std::printf("against the virtual rig's truth:\n%s", calibration_errors(result, *rendered).table().c_str());
+#endif
+  if (auto status = slproto::save_calibration(command.output_path, result.calibration); !status)
+    throw io::IoError(status.error().message);
+  if (!command.report_path.empty())
+    if (auto status = slproto::write_file_atomically(command.report_path, calibration_report_json(result.report));
+        !status)
+      throw io::IoError(status.error().message);
+  console.info("wrote " + command.output_path);
+  if (command.result != nullptr) *command.result = std::move(result);
+  return exit_ok;
+}
+
+}  // namespace slscan::app
