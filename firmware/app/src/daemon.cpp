@@ -221,7 +221,13 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
 
   if (outcome.state == pb::SCAN_STATE_ABORTED) {
     std::lock_guard lock(cause_mutex);
-    outcome.error = make_error(Errc::aborted, abort_cause.empty() ? "aborted" : abort_cause);
+    // The host's cause first; the sequencer's detail (where a turntable move was cut short)
+    // after it, unless it is only the generic "scan aborted".
+    std::string text = abort_cause.empty() ? "aborted" : abort_cause;
+    if (!outcome.error.message.empty() && outcome.error.message != "scan aborted") {
+      text += " (" + outcome.error.message + ")";
+    }
+    outcome.error = make_error(Errc::aborted, text);
   }
   if (connection_lost && outcome.state == pb::SCAN_STATE_DONE && frames_sent < outcome.frames_captured) {
     outcome.state = pb::SCAN_STATE_FAILED;
