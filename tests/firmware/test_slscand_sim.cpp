@@ -216,6 +216,13 @@ TEST_F(DaemonFixture, FullSixViewScanArrivesInOrderWithTimingLog) {
     }
   }
   EXPECT_TRUE(has_period);
+  // The board keeps the full report of the scan: one trigger-to-exposure latency per frame,
+  // one period per consecutive pair in a pass unless back-pressure paused it.
+  const TimingReport& report = daemon_->stats().last_timing;
+  EXPECT_EQ(report.trigger_to_exposure.count, 6u * 2u * 19u);
+  EXPECT_EQ(report.pattern_period.count + report.paused_frames, 6u * 2u * 18u);
+  EXPECT_GE(report.trigger_to_exposure.p50_us, 5.0);  // the sim's camera latency (boards/sim.toml)
+  EXPECT_LE(report.period_jitter.p50_us, report.period_jitter.p99_us);
   expect_dark_and_idle();
 }
 
