@@ -90,10 +90,10 @@ double thread_cpu_seconds() {
 }
 
 void print_report(const TimingReport& r) {
-  std::printf("| interval (us) | count | mean | p50 | p99 | max |\n|---|---:|---:|---:|---:|---:|\n");
+  std::printf("| interval (us) | count | mean | min | p50 | p99 | max |\n|---|---:|---:|---:|---:|---:|---:|\n");
   for (const TimingSummary& s : r.all()) {
-    std::printf("| %s | %llu | %.1f | %.1f | %.1f | %.1f |\n", s.name.c_str(), static_cast<unsigned long long>(s.count),
-                s.mean_us, s.p50_us, s.p99_us, s.max_us);
+    std::printf("| %s | %llu | %.1f | %.1f | %.1f | %.1f | %.1f |\n", s.name.c_str(),
+                static_cast<unsigned long long>(s.count), s.mean_us, s.min_us, s.p50_us, s.p99_us, s.max_us);
   }
 }
 
