@@ -133,7 +133,9 @@ class DaemonFixture : public ::testing::Test {
     const Received r = receive_scan(c);
     ASSERT_TRUE(r.done.has_value());
     EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
-    EXPECT_EQ(r.frames.size(), 38u);
+    ASSERT_EQ(r.frames.size(), 38u);
+    EXPECT_EQ(r.frames.front().sequence(), 0u);
+    EXPECT_EQ(r.frames.back().scan_id(), id);
   }
 
   void expect_dark_and_idle() {
@@ -319,7 +321,8 @@ TEST_F(DaemonFixture, FaultsAreReportedWithTheirCause) {
 }
 
 TEST_F(DaemonFixture, CameraTimeoutIsReported) {
-  start(/*frame_timeout_ms=*/300);
+  // Long enough for the renderer on a loaded machine (the scan after the fault must pass).
+  start(/*frame_timeout_ms=*/5000);
   slproto::Connection c = connect();
   hal::sim::SimFaults faults;
   faults.camera_silent = true;
@@ -332,6 +335,9 @@ TEST_F(DaemonFixture, CameraTimeoutIsReported) {
   EXPECT_NE(r.errors[0].text().find("camera timeout at view 0, left projector, pattern 0"), std::string::npos)
       << r.errors[0].text();
   expect_dark_and_idle();
+  // The camera is back: the daemon scans again, numbering its frames from 0.
+  daemon_->devices().sim_rig->set_faults({});
+  expect_next_scan_runs(c, 21);
 }
 
 TEST_F(DaemonFixture, RefusedAndBusyRequests) {
