@@ -2,7 +2,7 @@
 # Cross-builds the firmware (slscand, its backends and their unit tests) for an ARM board with
 # Debian's cross compilers, then runs the firmware tests under qemu-user.
 #   scripts/cross-build.sh [arm64|armhf]      (default arm64)
-# 1. installs the cross compiler and qemu-user-static if they are missing (root, Debian);
+# 1. installs the cross compiler, qemu-user-static and file if they are missing (root, Debian);
 # 2. unpacks the target's -dev packages into build/sysroot-<triplet>: `apt-get download` through
 #    a private apt state (build/apt-<arch>: the machine's sources, its own package lists), then
 #    `dpkg-deb -x`. Nothing is installed for the target and dpkg's architectures are untouched;
@@ -28,6 +28,7 @@ elapsed() { echo $(( $(date +%s) - start )); }
 need=()
 command -v "$triplet-g++" >/dev/null || need+=("g++-$triplet")
 command -v "$qemu" >/dev/null || need+=(qemu-user-static)
+command -v file >/dev/null || need+=(file)  # checks what the build produced
 if [ ${#need[@]} -gt 0 ]; then
   if [ "$(id -u)" -ne 0 ]; then
     echo "cross-build: missing ${need[*]}; install them (apt-get install ${need[*]}) or run as root" >&2
