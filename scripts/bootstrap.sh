@@ -41,7 +41,7 @@ packages=(
   # tests and benchmarks
   googletest libgtest-dev libgmock-dev libbenchmark-dev
   # cross builds
-  g++-aarch64-linux-gnu g++-arm-linux-gnueabihf qemu-user-static
+  g++-aarch64-linux-gnu g++-arm-linux-gnueabihf qemu-user-static file
 )
 
 stamp=/var/lib/slscan-bootstrap.stamp

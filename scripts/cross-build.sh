@@ -1,22 +1,42 @@
 #!/usr/bin/env bash
 # Cross-builds the firmware (slscand, its backends and their unit tests) for an ARM board with
-# Debian's cross compilers, then runs the unit tests under qemu-user.
-#   scripts/cross-build.sh [arm64|armhf]      (default arm64; needs root for the first run)
-# 1. adds the target architecture to dpkg (multiarch) and updates apt's lists, once;
-# 2. unpacks the target's -dev packages into build/sysroot-<triplet> (apt-get download +
-#    dpkg-deb -x: nothing is installed on the build machine);
-# 3. configures and builds the `aarch64` / `armhf` preset (host tools off), runs ctest.
-# SLSCAN_CROSS_SKIP_TESTS=1 builds only; SLSCAN_CROSS_SYSROOT_ONLY=1 only prepares the sysroot.
+# Debian's cross compilers, then runs the firmware tests under qemu-user.
+#   scripts/cross-build.sh [arm64|armhf]      (default arm64)
+# 1. installs the cross compiler, qemu-user-static and file if they are missing (root, Debian);
+# 2. unpacks the target's -dev packages into build/sysroot-<triplet>: `apt-get download` through
+#    a private apt state (build/apt-<arch>: the machine's sources, its own package lists), then
+#    `dpkg-deb -x`. Nothing is installed for the target and dpkg's architectures are untouched;
+# 3. configures and builds the `aarch64` / `armhf` preset (host tools off), checks that slscand
+#    is an ELF for the target, and runs ctest -L firmware under qemu-user.
+# Environment: SLSCAN_CROSS_SKIP_TESTS=1 builds only; SLSCAN_CROSS_SYSROOT_ONLY=1 only prepares
+# the sysroot; SLSCAN_CROSS_CTEST_ARGS adds ctest arguments (e.g. "-LE integration" runs only
+# the unit tests, without slscand serving sim scans under emulation).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 arch=${1:-arm64}
 case "$arch" in
-  arm64) triplet=aarch64-linux-gnu; preset=aarch64 ;;
-  armhf) triplet=arm-linux-gnueabihf; preset=armhf ;;
+  arm64) triplet=aarch64-linux-gnu; preset=aarch64; qemu=qemu-aarch64-static; elf="ARM aarch64" ;;
+  armhf) triplet=arm-linux-gnueabihf; preset=armhf; qemu=qemu-arm-static; elf="ARM, EABI5" ;;
   *) echo "cross-build: unknown architecture '$arch' (arm64 or armhf)" >&2; exit 2 ;;
 esac
 sysroot=$PWD/build/sysroot-$triplet
 start=$(date +%s)
+elapsed() { echo $(( $(date +%s) - start )); }
+
+# The cross compiler and qemu-user (scripts/bootstrap.sh installs both; this covers a machine
+# that only wants the cross build).
+need=()
+command -v "$triplet-g++" >/dev/null || need+=("g++-$triplet")
+command -v "$qemu" >/dev/null || need+=(qemu-user-static)
+command -v file >/dev/null || need+=(file)  # checks what the build produced
+if [ ${#need[@]} -gt 0 ]; then
+  if [ "$(id -u)" -ne 0 ]; then
+    echo "cross-build: missing ${need[*]}; install them (apt-get install ${need[*]}) or run as root" >&2
+    exit 1
+  fi
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need[@]}"
+fi
 
 # Everything the firmware links (protobuf-lite, libgpiod, libserialport), the header-only
 # libraries it includes (nlohmann-json, toml++) and GoogleTest for the unit tests. libcamera
@@ -28,35 +48,31 @@ packages=(libprotobuf-dev libprotobuf-lite32 libprotobuf32 zlib1g zlib1g-dev
 
 stamp=$sysroot/.slscan-packages
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "${packages[*]}" ]; then
-  if ! dpkg --print-foreign-architectures | grep -qx "$arch"; then
-    dpkg --add-architecture "$arch"
-    apt-get update -qq
-  fi
+  # A private apt state for the target architecture: the machine's sources, but its own lists
+  # and an empty dpkg status. Needs no root, leaves dpkg's architectures and apt's lists alone.
+  apt_dir=$PWD/build/apt-$arch
+  mkdir -p "$apt_dir/lists/partial" "$apt_dir/cache/archives/partial"
+  : >"$apt_dir/status"
+  apt_opts=(-q -o "Dir::State=$apt_dir" -o "Dir::State::Lists=$apt_dir/lists"
+            -o "Dir::State::status=$apt_dir/status" -o "Dir::Cache=$apt_dir/cache"
+            -o "APT::Architecture=$arch" -o "APT::Architectures=$arch" -o Debug::NoLocking=1)
+  # As root apt drops to the _apt user to download, which cannot write to our directories.
+  if [ "$(id -u)" -eq 0 ]; then apt_opts+=(-o APT::Sandbox::User=root); fi
+  apt-get "${apt_opts[@]}" update >/dev/null
   work=$(mktemp -d)
   trap 'rm -rf "$work"' EXIT
-  (
-    cd "$work"
-    names=()
-    for p in "${packages[@]}"; do
-      # Architecture-independent packages (headers only) have no :arch variant.
-      if apt-cache show "$p" 2>/dev/null | grep -m1 '^Architecture:' | grep -qw all; then
-        names+=("$p")
-      else
-        names+=("$p:$arch")
-      fi
-    done
-    apt-get download -q "${names[@]}" >/dev/null 2>&1 || apt-get download "${names[@]}"
-  )
+  (cd "$work" && apt-get "${apt_opts[@]}" download "${packages[@]}" >/dev/null)
   rm -rf "$sysroot"
   mkdir -p "$sysroot"
   for deb in "$work"/*.deb; do dpkg-deb -x "$deb" "$sysroot"; done
-  # -dev packages link libfoo.so -> libfoo.so.N with absolute paths in a few cases: make them
-  # relative so they resolve inside the sysroot.
+  # -dev packages link libfoo.so -> /usr/lib/... with absolute paths in a few cases: point
+  # them into the sysroot so they resolve there, not to the build machine's libraries.
   find "$sysroot" -type l -lname '/*' | while read -r link; do
     target=$(readlink "$link")
     ln -sf "$sysroot$target" "$link"
   done
   echo "${packages[*]}" > "$stamp"
+  echo "cross-build: sysroot of $(find "$work" -name '*.deb' | wc -l) $arch packages ready in $(elapsed) s"
 fi
 
 export SLSCAN_SYSROOT=$sysroot
@@ -66,9 +82,16 @@ if [ "${SLSCAN_CROSS_SYSROOT_ONLY:-0}" = 1 ]; then
 fi
 cmake --preset "$preset" -DSLSCAND_LIBCAMERA=OFF >/dev/null
 cmake --build --preset "$preset" -j "$(nproc)"
-echo "cross-build: built $preset in $(( $(date +%s) - start )) s"
+echo "cross-build: built $preset in $(elapsed) s"
+binary=build/$preset/firmware/app/slscand
+description=$(file -b "$binary")
+echo "cross-build: $binary: $description"
+case "$description" in
+  *ELF*"$elf"*) ;;
+  *) echo "cross-build: $binary is not an ELF for $arch ($elf)" >&2; exit 1 ;;
+esac
 if [ "${SLSCAN_CROSS_SKIP_TESTS:-0}" != 1 ]; then
-  ctest --preset "$preset" -L firmware
-  echo "cross-build: tests under qemu done in $(( $(date +%s) - start )) s"
+  # shellcheck disable=SC2086  # word splitting of the extra arguments is wanted
+  ctest --preset "$preset" -L firmware ${SLSCAN_CROSS_CTEST_ARGS:-}
+  echo "cross-build: tests under $qemu done, $(elapsed) s in all"
 fi
-file "build/$preset/firmware/app/slscand"

@@ -4,9 +4,12 @@
 #   2. dev build (warnings as errors) and the full CTest suite
 #   3. ASan + UBSan build and the same suite
 #   4. the libgpiod v2 GPIO backend, compiled and unit-tested against bookworm-backports' 2.x
-#   5. each libFuzzer target for a short fixed time on its committed corpus
-#   6. clang-format check of every source file
-# Usage: scripts/test.sh   (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 / SLSCAN_SKIP_GPIOD2=1 to shorten)
+#   5. the firmware cross-built for aarch64 (scripts/cross-build.sh arm64): slscand must be an
+#      aarch64 ELF, and the firmware tests run under qemu-user
+#   6. each libFuzzer target for a short fixed time on its committed corpus
+#   7. clang-format check of every source file
+# Usage: scripts/test.sh   (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 / SLSCAN_SKIP_GPIOD2=1 /
+#        SLSCAN_SKIP_CROSS=1 to shorten)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -36,6 +39,11 @@ if [ "${SLSCAN_SKIP_GPIOD2:-0}" != 1 ]; then
     -DSLSCAN_BUILD_BENCH=OFF >/dev/null
   cmake --build build/gpiod2 -j "$jobs" --target test_firmware_gpio
   build/gpiod2/tests/firmware/test_firmware_gpio
+fi
+
+if [ "${SLSCAN_SKIP_CROSS:-0}" != 1 ]; then
+  step "aarch64 cross build of the firmware + its tests under qemu-user"
+  scripts/cross-build.sh arm64
 fi
 
 if [ "${SLSCAN_SKIP_FUZZ:-0}" != 1 ] && [ -d tests/fuzz ]; then

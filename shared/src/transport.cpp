@@ -54,7 +54,13 @@ std::string format_address(const sockaddr* address) {
     const auto* in6 = reinterpret_cast<const sockaddr_in6*>(address);
     inet_ntop(AF_INET6, &in6->sin6_addr, host, sizeof host);
     port = ntohs(in6->sin6_port);
-    return "[" + std::string(host) + "]:" + std::to_string(port);
+    // Appended piece by piece: `"[" + std::string(...)` trips GCC 12's -Wrestrict false
+    // positive (GCC PR 105329) in the -O2 cross builds.
+    std::string text = "[";
+    text += host;
+    text += "]:";
+    text += std::to_string(port);
+    return text;
   }
   return "unknown address";
 }

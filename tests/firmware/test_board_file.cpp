@@ -24,9 +24,9 @@ std::string read_text(const std::string& path) {
 
 const std::string kSimPath = std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml";
 
-// The sim board with one line replaced (or removed when `replacement` is empty).
-std::string sim_with(const std::string& line_start, const std::string& replacement) {
-  std::istringstream in(read_text(kSimPath));
+// A shipped board file with one line replaced (or removed when `replacement` is empty).
+std::string board_with(const std::string& path, const std::string& line_start, const std::string& replacement) {
+  std::istringstream in(read_text(path));
   std::string out, line;
   bool found = false;
   while (std::getline(in, line)) {
@@ -37,8 +37,12 @@ std::string sim_with(const std::string& line_start, const std::string& replaceme
     }
     out += line + "\n";
   }
-  EXPECT_TRUE(found) << "no line starting with '" << line_start << "' in sim.toml";
+  EXPECT_TRUE(found) << "no line starting with '" << line_start << "' in " << path;
   return out;
+}
+
+std::string sim_with(const std::string& line_start, const std::string& replacement) {
+  return board_with(kSimPath, line_start, replacement);
 }
 
 std::string error_of(const std::string& text) {
@@ -131,4 +135,31 @@ TEST(BoardFile, MissingFileIsNamed) {
   auto board = load_board("/nonexistent/board.toml");
   ASSERT_FALSE(board.ok());
   EXPECT_NE(board.error().message.find("/nonexistent/board.toml"), std::string::npos);
+}
+
+TEST(BoardFile, HardwareBoardsNameTheirMissingAndContradictoryFields) {
+  const std::string rpi = std::string(SLSCAN_SOURCE_DIR) + "/boards/rpi.toml";
+  const std::string bbb = std::string(SLSCAN_SOURCE_DIR) + "/boards/beaglebone-black.toml";
+  EXPECT_NE(error_of(board_with(rpi, "chip =", "")).find("missing field 'gpio.chip'"), std::string::npos);
+  EXPECT_NE(error_of(board_with(rpi, "chip =", "chip = \"\"")).find("gpio.chip must name a GPIO chip"),
+            std::string::npos);
+  EXPECT_NE(error_of(board_with(rpi, "port = \"usb", "port = \"\"")).find("turntable.port must name"),
+            std::string::npos);
+  EXPECT_NE(error_of(board_with(rpi, "baud =", "")).find("missing field 'turntable.baud'"), std::string::npos);
+  // The Pi's camera is triggered by the projectors: a board trigger line contradicts that.
+  EXPECT_NE(error_of(board_with(rpi, "trigger =", "trigger = \"projector\"\ntrigger_line = 5"))
+                .find("camera.trigger_line is set"),
+            std::string::npos);
+  // Real GPIO with the emulated turntable (or the virtual camera) cannot work.
+  EXPECT_NE(error_of(board_with(rpi, "serial =", "serial = \"emulator\"")).find("go together"), std::string::npos);
+  EXPECT_NE(error_of(board_with(rpi, "backend = \"gpiod\"", "backend = \"gpoid\""))
+                .find("gpio.backend must be \"gpiod\" or \"sim\", not \"gpoid\""),
+            std::string::npos);
+  // The BeagleBone drives the camera trigger itself: without its line, or on a projector's line.
+  EXPECT_NE(error_of(board_with(bbb, "trigger_line =", "")).find("needs camera.trigger_line"), std::string::npos);
+  EXPECT_NE(error_of(board_with(bbb, "trigger_line =", "trigger_line = 12")).find("GPIO line 12 is assigned twice"),
+            std::string::npos);
+  // A lost table header moves its keys into the table above: named, not silently ignored.
+  const std::string lost = error_of(board_with(bbb, "[timing]", ""));
+  EXPECT_NE(lost.find("unknown field 'camera."), std::string::npos) << lost;  // e.g. camera.ack_timeout_ms
 }

@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <thread>
 
@@ -22,11 +23,13 @@ namespace {
 
 class DaemonFixture : public ::testing::Test {
  protected:
-  void start(double frame_timeout_ms = 20000, std::string timing_log_dir = {}) {
+  void start(double frame_timeout_ms = 20000, std::string timing_log_dir = {},
+             const std::function<void(hal::BoardConfig&)>& adjust = {}) {
     auto board = hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml");
     ASSERT_TRUE(board.ok()) << board.error().message;
     // The renderer's speed (ASan, a loaded CI machine) is not part of the timing model.
     board->frame_timeout_ms = frame_timeout_ms;
+    if (adjust) adjust(*board);
     auto devices = hal::open_board_devices(*board);
     ASSERT_TRUE(devices.ok()) << devices.error().message;
     DaemonOptions options;
@@ -97,6 +100,42 @@ class DaemonFixture : public ::testing::Test {
       }
     }
     return r;
+  }
+
+  // Receives until the daemon reports the turntable moving to `view`; false on anything else
+  // that ends the scan first.
+  static bool wait_until_moving_to(slproto::Connection& c, std::uint32_t view) {
+    for (;;) {
+      auto m = c.receive(60s);
+      if (!m) return false;
+      if (const auto* p = m->get<pb::Progress>()) {
+        if (p->state() == pb::SCAN_STATE_MOVING && p->view_index() == view) return true;
+      } else if (m->get<pb::ScanDone>() != nullptr) {
+        return false;
+      }
+    }
+  }
+
+  // A table that does not move any more: two readings apart give the same angle.
+  void expect_table_stopped() {
+    auto& table = daemon_->devices().sim_rig->turntable();
+    EXPECT_FALSE(table.moving());
+    const double before = table.angle_deg();
+    std::this_thread::sleep_for(150ms);
+    EXPECT_DOUBLE_EQ(table.angle_deg(), before);
+  }
+
+  // A one-view scan where the table already is: proves the daemon takes the next scan.
+  void expect_next_scan_runs(slproto::Connection& c, std::uint64_t id) {
+    pb::ScanRequest next = request(id, 1);
+    next.set_turntable_angles_deg(0, daemon_->devices().sim_rig->turntable().angle_deg());
+    ASSERT_TRUE(c.send(next).ok());
+    const Received r = receive_scan(c);
+    ASSERT_TRUE(r.done.has_value());
+    EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
+    ASSERT_EQ(r.frames.size(), 38u);
+    EXPECT_EQ(r.frames.front().sequence(), 0u);
+    EXPECT_EQ(r.frames.back().scan_id(), id);
   }
 
   void expect_dark_and_idle() {
@@ -179,6 +218,13 @@ TEST_F(DaemonFixture, FullSixViewScanArrivesInOrderWithTimingLog) {
     }
   }
   EXPECT_TRUE(has_period);
+  // The board keeps the full report of the scan: one trigger-to-exposure latency per frame,
+  // one period per consecutive pair in a pass unless back-pressure paused it.
+  const TimingReport& report = daemon_->stats().last_timing;
+  EXPECT_EQ(report.trigger_to_exposure.count, 6u * 2u * 19u);
+  EXPECT_EQ(report.pattern_period.count + report.paused_frames, 6u * 2u * 18u);
+  EXPECT_GE(report.trigger_to_exposure.p50_us, 5.0);  // the sim's camera latency (boards/sim.toml)
+  EXPECT_LE(report.period_jitter.p50_us, report.period_jitter.p99_us);
   expect_dark_and_idle();
 }
 
@@ -275,7 +321,8 @@ TEST_F(DaemonFixture, FaultsAreReportedWithTheirCause) {
 }
 
 TEST_F(DaemonFixture, CameraTimeoutIsReported) {
-  start(/*frame_timeout_ms=*/300);
+  // Long enough for the renderer on a loaded machine (the scan after the fault must pass).
+  start(/*frame_timeout_ms=*/5000);
   slproto::Connection c = connect();
   hal::sim::SimFaults faults;
   faults.camera_silent = true;
@@ -288,6 +335,9 @@ TEST_F(DaemonFixture, CameraTimeoutIsReported) {
   EXPECT_NE(r.errors[0].text().find("camera timeout at view 0, left projector, pattern 0"), std::string::npos)
       << r.errors[0].text();
   expect_dark_and_idle();
+  // The camera is back: the daemon scans again, numbering its frames from 0.
+  daemon_->devices().sim_rig->set_faults({});
+  expect_next_scan_runs(c, 21);
 }
 
 TEST_F(DaemonFixture, RefusedAndBusyRequests) {
@@ -338,4 +388,93 @@ TEST_F(DaemonFixture, TimingLogIsWrittenOnTheBoard) {
   EXPECT_EQ(count("TIMING_EVENT_FRAME_SENT,"), 38u);  // only the board's log has the send times
   EXPECT_EQ(count("TIMING_EVENT_TURNTABLE_MOVE_DONE,"), 1u);
   std::filesystem::remove_all(dir);
+}
+
+// A slow table (5 deg/s: the 60 deg move takes 12 s) so the host's abort lands mid-move, and
+// "stopped at once" stays distinguishable from "stopped at the end" on a loaded machine.
+void slow_turntable(hal::BoardConfig& board) { board.feed_deg_per_min = 300; }
+
+TEST_F(DaemonFixture, AbortDuringATurntableMoveStopsTheTableAtOnce) {
+  start(20000, {}, slow_turntable);
+  slproto::Connection c = connect();
+  ASSERT_TRUE(c.send(request(50, 2)).ok());
+  ASSERT_TRUE(wait_until_moving_to(c, 1));
+  std::this_thread::sleep_for(300ms);
+  pb::Abort abort;
+  abort.set_scan_id(50);
+  abort.set_reason("operator");
+  const auto sent = std::chrono::steady_clock::now();
+  ASSERT_TRUE(c.send(abort).ok());
+  const Received rest = receive_scan(c);
+  const auto took = std::chrono::steady_clock::now() - sent;
+  ASSERT_TRUE(rest.done.has_value());
+  EXPECT_EQ(rest.done->final_state(), pb::SCAN_STATE_ABORTED);
+  EXPECT_EQ(rest.done->views_completed(), 1u);
+  EXPECT_NE(rest.done->text().find("aborted by the host: operator"), std::string::npos) << rest.done->text();
+  EXPECT_NE(rest.done->text().find("turntable move to 60.000 deg aborted"), std::string::npos) << rest.done->text();
+  // Not after the move: the rest of it would take over 11 s.
+  EXPECT_LT(took, 6s);
+  const double stopped_at = daemon_->devices().sim_rig->turntable().angle_deg();
+  EXPECT_GT(stopped_at, 0.2);
+  EXPECT_LT(stopped_at, 40.0);
+  expect_table_stopped();
+  expect_dark_and_idle();
+  expect_next_scan_runs(c, 51);
+}
+
+TEST_F(DaemonFixture, HostDisconnectDuringATurntableMoveStopsTheTable) {
+  start(20000, {}, slow_turntable);
+  {
+    slproto::Connection c = connect();
+    ASSERT_TRUE(c.send(request(55, 2)).ok());
+    ASSERT_TRUE(wait_until_moving_to(c, 1));
+    std::this_thread::sleep_for(300ms);
+    c.close();
+  }
+  for (int i = 0; i < 300 && (daemon_->stats().scans_aborted + daemon_->stats().scans_failed) == 0; ++i) {
+    std::this_thread::sleep_for(20ms);
+  }
+  const DaemonStats stats = daemon_->stats();
+  ASSERT_EQ(stats.scans_aborted, 1u) << stats.last_error;  // within 6 s, not after the 12 s move
+  EXPECT_NE(stats.last_error.find("host disconnected"), std::string::npos) << stats.last_error;
+  EXPECT_LT(daemon_->devices().sim_rig->turntable().angle_deg(), 40.0);
+  expect_table_stopped();
+  expect_dark_and_idle();
+  slproto::Connection again = connect();
+  expect_next_scan_runs(again, 56);
+}
+
+TEST_F(DaemonFixture, TurntableTimeoutsEndTheScan) {
+  start(20000, {}, [](hal::BoardConfig& board) {
+    slow_turntable(board);
+    board.move_timeout_s = 0.5;  // the 60 deg move needs 12 s
+  });
+  slproto::Connection c = connect();
+  ASSERT_TRUE(c.send(request(60, 2)).ok());
+  Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  EXPECT_EQ(r.frames.size(), 38u);  // view 0 (no move) was delivered
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_EQ(slproto::errc_from_wire(r.errors[0].code()), slproto::Errc::timeout);
+  EXPECT_NE(r.errors[0].text().find("did not reach 60.000 deg within 500 ms"), std::string::npos) << r.errors[0].text();
+  EXPECT_LT(daemon_->devices().sim_rig->turntable().angle_deg(), 20.0);
+  expect_table_stopped();
+  expect_dark_and_idle();
+  expect_next_scan_runs(c, 61);
+
+  // A controller that stops answering altogether: the move command itself is never acknowledged.
+  hal::sim::TurntableFaults silent;
+  silent.silent = true;
+  daemon_->devices().sim_rig->turntable().set_faults(silent);
+  ASSERT_TRUE(c.send(request(62, 2)).ok());
+  r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_NE(r.errors[0].text().find("turntable did not acknowledge 'G1X0.000"), std::string::npos)
+      << r.errors[0].text();
+  expect_dark_and_idle();
+  daemon_->devices().sim_rig->turntable().set_faults({});
+  expect_next_scan_runs(c, 63);
 }

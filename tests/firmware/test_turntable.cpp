@@ -3,7 +3,9 @@
 // and leaves the driver usable.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
+#include <thread>
 
 #include "slscand/hal/sim/turntable_emulator.hpp"
 #include "slscand/hal/turntable.hpp"
@@ -19,14 +21,14 @@ struct Rig {
   std::unique_ptr<GrblTurntable> table;
 };
 
-Rig connect_rig(GrblOptions options = {}) {
+Rig connect_rig(GrblOptions options = {}, double feed_deg_per_s = 720) {
   Rig rig;
   auto emulator = sim::TurntableEmulator::start(720);  // 720 deg/s: fast tests
   EXPECT_TRUE(emulator.ok());
   rig.emulator = std::move(*emulator);
   auto port = open_termios_port(rig.emulator->slave_path(), 115200);
   EXPECT_TRUE(port.ok()) << port.error().message;
-  options.feed_deg_per_min = 720 * 60;
+  options.feed_deg_per_min = feed_deg_per_s * 60;
   options.stall_timeout_ns = 150 * kMilli;
   options.banner_timeout_ns = 500 * kMilli;
   auto table = GrblTurntable::connect(std::move(*port), options);
@@ -171,4 +173,38 @@ TEST(GrblTurntable, NoBannerMeansWrongPort) {
   ASSERT_FALSE(table.ok());
   EXPECT_EQ(table.error().code, Errc::timeout);
   EXPECT_NE(table.error().message.find("no GRBL banner"), std::string::npos);
+}
+
+TEST(GrblTurntable, CancelStopsAMoveWhereItIs) {
+  Rig rig = connect_rig({}, 20);  // 20 deg/s: the 180 deg move would take 9 s
+  ASSERT_TRUE(rig.table);
+  std::atomic<bool> cancel{false};
+  std::thread canceller([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    cancel = true;
+  });
+  const Nanos start = monotonic_now_ns();
+  auto reached = rig.table->rotate_to(180.0, 20 * kSecond, &cancel);
+  const Nanos took = monotonic_now_ns() - start;
+  canceller.join();
+  ASSERT_FALSE(reached.ok());
+  EXPECT_EQ(reached.error().code, Errc::aborted);
+  EXPECT_NE(reached.error().message.find("move to 180.000 deg aborted"), std::string::npos) << reached.error().message;
+  EXPECT_NE(reached.error().message.find("table stopped"), std::string::npos) << reached.error().message;
+  EXPECT_LT(took, 5 * kSecond);
+  EXPECT_FALSE(rig.emulator->moving());
+  const double stopped_at = rig.emulator->angle_deg();
+  EXPECT_GT(stopped_at, 0.0);
+  EXPECT_LT(stopped_at, 100.0);
+  // A feed hold before the reset keeps GRBL out of alarm: the next move just works.
+  auto again = rig.table->rotate_to(stopped_at + 1.0, 5 * kSecond);
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_NEAR(*again, stopped_at + 1.0, 1e-2);
+  // A cancel flag that is already set: no move is even commanded.
+  const std::uint64_t lines = rig.emulator->lines_received();
+  auto none = rig.table->rotate_to(0.0, 5 * kSecond, &cancel);
+  ASSERT_FALSE(none.ok());
+  EXPECT_EQ(none.error().code, Errc::aborted);
+  EXPECT_EQ(rig.emulator->lines_received(), lines);
+  EXPECT_NEAR(rig.emulator->angle_deg(), *again, 1e-3);
 }

@@ -150,7 +150,7 @@ TEST_F(Capture, TruncationAtEveryByteReadsBackTheCompleteRecords) {
   for (std::uint64_t cut :
        {offsets[frame_record] + 10, offsets[frame_record] + wire_header_size + 3, ends[frame_record] - 1}) {
     const std::string cut_file = path("cut.slcap");
-    write_all(cut_file, {bytes.data(), cut});
+    write_all(cut_file, {bytes.data(), static_cast<std::size_t>(cut)});
     Result<CaptureReader> reader = CaptureReader::open(cut_file);
     ASSERT_TRUE(reader.ok()) << reader.error().message;
     std::size_t records = 0;

@@ -221,12 +221,19 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
 
   if (outcome.state == pb::SCAN_STATE_ABORTED) {
     std::lock_guard lock(cause_mutex);
-    outcome.error = make_error(Errc::aborted, abort_cause.empty() ? "aborted" : abort_cause);
+    // The host's cause first; the sequencer's detail (where a turntable move was cut short)
+    // after it, unless it is only the generic "scan aborted".
+    std::string text = abort_cause.empty() ? "aborted" : abort_cause;
+    if (!outcome.error.message.empty() && outcome.error.message != "scan aborted") {
+      text += " (" + outcome.error.message + ")";
+    }
+    outcome.error = make_error(Errc::aborted, text);
   }
   if (connection_lost && outcome.state == pb::SCAN_STATE_DONE && frames_sent < outcome.frames_captured) {
     outcome.state = pb::SCAN_STATE_FAILED;
     outcome.error = make_error(Errc::disconnected, abort_cause);
   }
+  const TimingReport report = make_timing_report(outcome.frames, static_cast<double>(plan->period_ns) / kMicro);
   {
     std::lock_guard lock(stats_mutex_);
     if (outcome.state == pb::SCAN_STATE_DONE)
@@ -236,6 +243,8 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
     else
       stats_.scans_failed++;
     if (outcome.state != pb::SCAN_STATE_DONE) stats_.last_error = outcome.error.message;
+    stats_.last_timing = report;
+    stats_.last_backpressure_pauses = outcome.backpressure_pauses;
   }
   std::fprintf(stderr, "slscand: scan %llu %s: %llu of %llu frames sent%s%s\n",
                static_cast<unsigned long long>(plan->scan_id), state_name(outcome.state),
@@ -255,7 +264,7 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
   done.set_duration_ns(static_cast<std::uint64_t>(outcome.duration_ns));
   done.set_frames_dropped(0);  // never: back-pressure pauses the sequencer instead
   done.set_text(outcome.state == pb::SCAN_STATE_DONE ? "scan complete" : outcome.error.message);
-  add_timing_stats(make_timing_report(outcome.frames, static_cast<double>(plan->period_ns) / kMicro), done);
+  add_timing_stats(report, done);
   return connection.send(done).ok();
 }
 

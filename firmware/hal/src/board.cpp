@@ -126,6 +126,10 @@ slproto::Status BoardConfig::check() const {
     return fail("turntable.serial must be \"termios\", \"libserialport\" or \"emulator\", not \"" + serial_backend +
                 "\"");
   }
+  // An empty name would only fail later, when the device is opened, with a less direct message.
+  if (gpio_chip.empty()) return fail("gpio.chip must name a GPIO chip (a label, a name or a /dev path)");
+  if (camera_device.empty()) return fail("camera.device must not be empty (\"auto\" takes the first camera)");
+  if (serial_port.empty()) return fail("turntable.port must name a serial port (a path or usb:VID:PID)");
   const bool sim_gpio = gpio_backend == "sim";
   if (sim_gpio != (camera_backend == "sim") || sim_gpio != (serial_backend == "emulator")) {
     return fail(

@@ -147,8 +147,11 @@ Status GrblTurntable::home(Nanos timeout_ns) {
   return command("$H", monotonic_now_ns() + timeout_ns);
 }
 
-Result<double> GrblTurntable::rotate_to(double angle_deg, Nanos timeout_ns) {
+Result<double> GrblTurntable::rotate_to(double angle_deg, Nanos timeout_ns, const std::atomic<bool>* cancel) {
   if (!std::isfinite(angle_deg)) return make_error(Errc::invalid_argument, "turntable: angle is not finite");
+  if (cancel != nullptr && cancel->load()) {
+    return make_error(Errc::aborted, "turntable move to " + format_angle(angle_deg) + " deg aborted before it began");
+  }
   const Nanos deadline = monotonic_now_ns() + timeout_ns;
   const std::string move = "G1X" + format_angle(angle_deg) + "F" + format_angle(options_.feed_deg_per_min);
   if (auto s = command(move, std::min(deadline, monotonic_now_ns() + options_.reply_timeout_ns)); !s) return s.error();
@@ -160,6 +163,13 @@ Result<double> GrblTurntable::rotate_to(double angle_deg, Nanos timeout_ns) {
   Nanos next_poll = last_progress + options_.poll_interval_ns;
   bool done = false;
   while (!done) {
+    if (cancel != nullptr && cancel->load()) {
+      const auto stopped = stop();
+      std::string where = std::isnan(last_angle) ? std::string() : " near " + format_angle(last_angle) + " deg";
+      return make_error(Errc::aborted,
+                        "turntable move to " + format_angle(angle_deg) + " deg aborted" + where +
+                            (stopped ? "; table stopped" : "; stopping it failed: " + stopped.error().message));
+    }
     const Nanos now = monotonic_now_ns();
     if (now >= deadline) {
       (void)stop();

@@ -126,8 +126,11 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
       report(pb::SCAN_STATE_MOVING, view, angle, "rotating to " + std::to_string(angle) + " deg");
       log(pb::TIMING_EVENT_TURNTABLE_MOVE_START, monotonic_now_ns());
       turntable_involved = true;
-      auto reached = devices_.turntable->rotate_to(angle, move_timeout);
-      if (!reached) return Failure{pb::SCAN_STATE_FAILED, reached.error()};
+      auto reached = devices_.turntable->rotate_to(angle, move_timeout, &abort);
+      if (!reached) {
+        const bool aborted = reached.error().code == Errc::aborted;
+        return Failure{aborted ? pb::SCAN_STATE_ABORTED : pb::SCAN_STATE_FAILED, reached.error()};
+      }
       const Nanos stopped = monotonic_now_ns();
       log(pb::TIMING_EVENT_TURNTABLE_MOVE_DONE, stopped);
       turntable_involved = false;

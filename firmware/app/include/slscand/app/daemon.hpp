@@ -35,6 +35,10 @@ struct DaemonStats {
   std::uint64_t scans_failed = 0;
   std::uint64_t scans_refused = 0;
   std::string last_error;
+  // The last scan that ran (any ending): its timing report with every percentile (ScanDone
+  // carries only mean/stddev/min/max/p99) and how often back-pressure paused the sequencer.
+  TimingReport last_timing;
+  std::uint64_t last_backpressure_pauses = 0;
 };
 
 class Daemon {

@@ -2,6 +2,7 @@
 // Angles are degrees, counter-clockwise seen from above (docs/conventions.md).
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -25,7 +26,9 @@ class Turntable {
   virtual Status home(Nanos timeout_ns) = 0;
   // Returns once the table has stopped at `angle_deg` (within the driver's tolerance) and
   // reports the angle it reached; Errc::timeout or Errc::hardware (stall, wrong angle) if not.
-  virtual Result<double> rotate_to(double angle_deg, Nanos timeout_ns) = 0;
+  // `cancel` (may be null) is watched during the move: once it is set the table is stopped
+  // where it is and Errc::aborted returned, so a host's abort never waits for a long move.
+  virtual Result<double> rotate_to(double angle_deg, Nanos timeout_ns, const std::atomic<bool>* cancel = nullptr) = 0;
   virtual Result<TurntableStatus> status() = 0;
   // Stops any motion now and de-energises nothing: the table holds its position.
   virtual Status stop() = 0;
@@ -46,7 +49,7 @@ class GrblTurntable final : public Turntable {
   // Resets the controller (Ctrl-X), waits for its banner and sets absolute, degree mode.
   static Result<std::unique_ptr<GrblTurntable>> connect(std::unique_ptr<SerialPort> port, const GrblOptions& options);
   Status home(Nanos timeout_ns) override;
-  Result<double> rotate_to(double angle_deg, Nanos timeout_ns) override;
+  Result<double> rotate_to(double angle_deg, Nanos timeout_ns, const std::atomic<bool>* cancel = nullptr) override;
   Result<TurntableStatus> status() override;
   Status stop() override;
 
