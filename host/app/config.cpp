@@ -51,7 +51,7 @@ class Section {
 void apply_config(const json& config, core::ReconstructionOptions& o) {
   if (!config.is_object()) throw std::invalid_argument("config: the top level must be an object");
   static const char* sections[] = {"decode",       "triangulate", "fusion", "flying_pixels", "turntable_denoise",
-                                   "registration", "outliers",    "model",  "mesh"};
+                                   "registration", "outliers",    "model",  "mesh",          "normals"};
   for (const auto& [key, value] : config.items())
     if (std::find(std::begin(sections), std::end(sections), key) == std::end(sections))
       throw std::invalid_argument("config: unknown section '" + key + "'");
@@ -60,6 +60,8 @@ void apply_config(const json& config, core::ReconstructionOptions& o) {
       .read("min_contrast_dn", o.decode.min_contrast_dn)
       .read("min_modulation_dn", o.decode.min_modulation_dn)
       .read("saturation_dn", o.decode.saturation_dn)
+      .read("smoothing_radius", o.decode.smoothing_radius)
+      .read("smoothing_max_deviation_px", o.decode.smoothing_max_deviation_px)
       .finish();
   Section(config, "triangulate")
       .read("newton_iterations", o.triangulate.newton_iterations)
@@ -69,10 +71,12 @@ void apply_config(const json& config, core::ReconstructionOptions& o) {
       .finish();
   Section(config, "fusion").read("agreement_mm", o.fusion.agreement_mm).finish();
   Section(config, "flying_pixels")
+      .read("enabled", o.remove_flying_pixels)
       .read("max_abs_mm", o.flying_pixels.max_abs_mm)
       .read("relative", o.flying_pixels.relative)
       .finish();
   Section(config, "turntable_denoise")
+      .read("enabled", o.denoise_turntable)
       .read("min_height_mm", o.turntable_denoise.min_height_mm)
       .read("max_height_mm", o.turntable_denoise.max_height_mm)
       .read("radius_mm", o.turntable_denoise.radius_mm)
@@ -98,6 +102,11 @@ void apply_config(const json& config, core::ReconstructionOptions& o) {
       .read("enabled", o.remove_outliers)
       .read("k", o.outliers.k)
       .read("std_ratio", o.outliers.std_ratio)
+      .finish();
+  Section(config, "normals")
+      .read("window_radius", o.grid_normals.window_radius)
+      .read("max_neighbor_distance_mm", o.grid_normals.max_neighbor_distance_mm)
+      .read("min_neighbors", o.grid_normals.min_neighbors)
       .finish();
   Section(config, "model").read("voxel_mm", o.voxel_mm).read("normal_neighbors", o.normal_neighbors).finish();
   Section(config, "mesh")
@@ -134,16 +143,22 @@ json config_to_json(const core::ReconstructionOptions& o) {
        {{"bit_depth", o.decode.bit_depth},
         {"min_contrast_dn", o.decode.min_contrast_dn},
         {"min_modulation_dn", o.decode.min_modulation_dn},
-        {"saturation_dn", o.decode.saturation_dn}}},
+        {"saturation_dn", o.decode.saturation_dn},
+        {"smoothing_radius", o.decode.smoothing_radius},
+        {"smoothing_max_deviation_px", o.decode.smoothing_max_deviation_px}}},
       {"triangulate",
        {{"newton_iterations", o.triangulate.newton_iterations},
         {"max_residual_px", o.triangulate.max_residual_px},
         {"min_depth_mm", o.triangulate.min_depth_mm},
         {"max_depth_mm", o.triangulate.max_depth_mm}}},
       {"fusion", {{"agreement_mm", o.fusion.agreement_mm}}},
-      {"flying_pixels", {{"max_abs_mm", o.flying_pixels.max_abs_mm}, {"relative", o.flying_pixels.relative}}},
+      {"flying_pixels",
+       {{"enabled", o.remove_flying_pixels},
+        {"max_abs_mm", o.flying_pixels.max_abs_mm},
+        {"relative", o.flying_pixels.relative}}},
       {"turntable_denoise",
-       {{"min_height_mm", o.turntable_denoise.min_height_mm},
+       {{"enabled", o.denoise_turntable},
+        {"min_height_mm", o.turntable_denoise.min_height_mm},
         {"max_height_mm", o.turntable_denoise.max_height_mm},
         {"radius_mm", o.turntable_denoise.radius_mm}}},
       {"registration",
@@ -156,6 +171,10 @@ json config_to_json(const core::ReconstructionOptions& o) {
         {"turntable_prior_deg", o.registration.turntable_prior_deg},
         {"turntable_prior_mm", o.registration.turntable_prior_mm}}},
       {"outliers", {{"enabled", o.remove_outliers}, {"k", o.outliers.k}, {"std_ratio", o.outliers.std_ratio}}},
+      {"normals",
+       {{"window_radius", o.grid_normals.window_radius},
+        {"max_neighbor_distance_mm", o.grid_normals.max_neighbor_distance_mm},
+        {"min_neighbors", o.grid_normals.min_neighbors}}},
       {"model", {{"voxel_mm", o.voxel_mm}, {"normal_neighbors", o.normal_neighbors}}},
       {"mesh",
        {{"enabled", o.build_mesh},

@@ -116,6 +116,11 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   compare_cmd->add_option("--neighbors", compare.surface_neighbors, "Reference points per local surface")
       ->capture_default_str();
+  compare_cmd
+      ->add_flag("--project-pixels", compare.project_pixels,
+                 "Pixels of both clouds from --calib's camera even where the PLY has u, v (SLStudio's u, v are of "
+                 "its undistorted image)")
+      ->needs("--calib");
   compare_cmd->add_flag("--json", compare.json, "Print the figures as JSON");
   compare_cmd->add_option("--report", compare.report_path, "Also write the figures to this JSON file");
 

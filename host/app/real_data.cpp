@@ -62,22 +62,15 @@ int run_import(const ImportCommand& command, const Console& console) {
                capture_path + " and " + calibration_path);
   if (sequence.bit_depth > 8)
     console.info("reprocess it with a config whose decode.bit_depth is " + std::to_string(sequence.bit_depth));
+  if (description.plan.phase_steps == 0)
+    console.info(
+        "a Gray code without phase steps: its steps are the signal, reprocess with decode.smoothing_radius 0 "
+        "(docs/real-data.md)");
   return exit_ok;
 }
 
-void to_slstudio_gray_columns(std::vector<float>& coordinate, int bits_not_projected) {
-  if (bits_not_projected < 0 || bits_not_projected > 16)
-    throw std::invalid_argument("to_slstudio_gray_columns: bits_not_projected must be 0..16, got " +
-                                std::to_string(bits_not_projected));
-  const std::int64_t group = std::int64_t{1} << bits_not_projected;
-  for (float& x : coordinate) {
-    if (std::isnan(x)) continue;
-    const auto c = static_cast<std::int64_t>(std::floor(static_cast<double>(x) / static_cast<double>(group)));
-    x = static_cast<float>(c * group + (c & 1) * (group - 1));
-  }
-}
-
-core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera) {
+core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera,
+                                             bool ignore_stored_pixels) {
   const io::PlyTable table = io::read_ply_table(path);
   const auto& x = table.column("x");
   const auto& y = table.column("y");
@@ -86,7 +79,7 @@ core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slpr
   cloud.points.resize(table.vertex_count);
   for (std::size_t i = 0; i < table.vertex_count; ++i)
     cloud.points[i] = Eigen::Vector3f(static_cast<float>(x[i]), static_cast<float>(y[i]), static_cast<float>(z[i]));
-  if (table.find("u") >= 0 && table.find("v") >= 0) {
+  if (table.find("u") >= 0 && table.find("v") >= 0 && !(ignore_stored_pixels && camera != nullptr)) {
     const auto& u = table.column("u");
     const auto& v = table.column("v");
     cloud.u.assign(u.begin(), u.end());
@@ -129,9 +122,12 @@ int run_compare(const CompareCommand& command, const Console& console) {
     if (!loaded) throw io::IoError(loaded.error().message);
     calibration = std::move(loaded).value();
   }
+  if (command.project_pixels && !calibration)
+    throw std::invalid_argument("compare: --project-pixels needs --calib (the camera to project with)");
   const slproto::PinholeModel* camera = calibration ? &calibration->camera : nullptr;
-  const core::PixelTaggedCloud measured = read_pixel_tagged_ply(command.measured_path, camera);
-  const core::PixelTaggedCloud reference = read_pixel_tagged_ply(command.reference_path, camera);
+  const core::PixelTaggedCloud measured = read_pixel_tagged_ply(command.measured_path, camera, command.project_pixels);
+  const core::PixelTaggedCloud reference =
+      read_pixel_tagged_ply(command.reference_path, camera, command.project_pixels);
   core::CompareOptions options;
   options.max_distance_mm = command.max_distance_mm;
   options.surface_neighbors = command.surface_neighbors;

@@ -26,6 +26,9 @@ struct CompareCommand {
   // Optional calibration (ours, JSON): a camera-frame cloud without u/v properties gets its
   // pixels by projecting its points into the camera (our views/view_N.ply are such clouds).
   std::string calibration_path;
+  // Take both clouds' pixels from the calibration's camera even when the PLY has u/v: for
+  // clouds whose u/v are not the frames' pixels (SLStudio stores its undistorted image's).
+  bool project_pixels = false;
   double max_distance_mm = 5.0;
   int surface_neighbors = 8;
   bool json = false;        // print the figures as JSON on stdout
@@ -33,19 +36,10 @@ struct CompareCommand {
 };
 int run_compare(const CompareCommand& command, const Console& console);
 
-// A PLY file as a cloud with pixels: u/v properties when it has them, else the projection of
-// its points by `camera` when given (points behind the camera or outside the image get no
-// pixel), else none.
-core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera);
-
-// SLStudio's Gray-code convention, to compare like with like against its reconstructions.
-// Of a Gray code whose `bits_not_projected` (s) lowest bits were not shown, a decoded prefix c
-// numbers the 2^s projector columns c 2^s ... (c + 1) 2^s - 1; our decoder returns their centre
-// (c 2^s + (2^s - 1) / 2). SLStudio's DecoderGrayCode reads the unshown bits as 0 and converts
-// that word to binary, whose low s bits all equal the parity of gray(c), i.e. c's own lowest
-// bit: it returns the column c 2^s + (c & 1) (2^s - 1), the first of the group for even c and
-// the last for odd c (for s = 1: 2c, 2c + 1, 2c + 2, 2c + 5, ... alternately half a column
-// either side of the centre). Rewrites our coordinates (NaN stays NaN) into that convention.
-void to_slstudio_gray_columns(std::vector<float>& coordinate, int bits_not_projected);
+// A PLY file as a cloud with pixels: u/v properties when it has them (unless
+// `ignore_stored_pixels`), else the projection of its points by `camera` when given (points
+// behind the camera or outside the image get no pixel), else none.
+core::PixelTaggedCloud read_pixel_tagged_ply(const std::string& path, const slproto::PinholeModel* camera,
+                                             bool ignore_stored_pixels = false);
 
 }  // namespace slscan::app

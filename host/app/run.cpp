@@ -92,7 +92,11 @@ class StreamReconstruction {
   static std::string describe(const slproto::PatternPlanConfig& c) {
     return std::to_string(c.projector_width) + "x" + std::to_string(c.projector_height) + " " +
            slproto::coding_axis_name(c.axis) + " P=" + std::to_string(c.period_px) +
-           " N=" + std::to_string(c.phase_steps) + (c.complementary_bit ? " +complementary" : "");
+           " N=" + std::to_string(c.phase_steps) + (c.complementary_bit ? " +complementary" : "") +
+           (c.with_white_black ? "" : " -white/black") + (c.inverse_gray ? " +inverse" : "") +
+           (c.gray_low_bits == slproto::GrayLowBits::centre
+                ? ""
+                : std::string(" ") + slproto::gray_low_bits_name(c.gray_low_bits));
   }
   slproto::RigCalibration calibration_;
   core::ReconstructionOptions options_;

@@ -194,10 +194,15 @@ json to_json_model(const PinholeModel& m) {
 json to_json_pose(const RigidTransform& p) { return {{"R", p.R}, {"t", p.t}}; }
 
 json to_json_plan(const PatternPlanConfig& c) {
-  return {{"projector_width", c.projector_width},  {"projector_height", c.projector_height},
-          {"axis", coding_axis_name(c.axis)},      {"period_px", c.period_px},
-          {"phase_steps", c.phase_steps},          {"complementary_bit", c.complementary_bit},
-          {"with_white_black", c.with_white_black}};
+  return {{"projector_width", c.projector_width},
+          {"projector_height", c.projector_height},
+          {"axis", coding_axis_name(c.axis)},
+          {"period_px", c.period_px},
+          {"phase_steps", c.phase_steps},
+          {"complementary_bit", c.complementary_bit},
+          {"with_white_black", c.with_white_black},
+          {"inverse_gray", c.inverse_gray},
+          {"gray_low_bits", gray_low_bits_name(c.gray_low_bits)}};
 }
 
 // Reads fields with their full path in error messages ("camera.fx: missing").
@@ -277,6 +282,18 @@ struct Reader {
     c.phase_steps = integer(obj, path, "phase_steps");
     c.complementary_bit = boolean(obj, path, "complementary_bit");
     c.with_white_black = boolean(obj, path, "with_white_black");
+    // Later additions: optional, so files written before them still read (as false, centre).
+    if (obj.contains("inverse_gray")) c.inverse_gray = boolean(obj, path, "inverse_gray");
+    if (obj.contains("gray_low_bits")) {
+      const std::string convention = text(obj, path, "gray_low_bits");
+      if (convention == "centre")
+        c.gray_low_bits = GrayLowBits::centre;
+      else if (convention == "slstudio_parity")
+        c.gray_low_bits = GrayLowBits::slstudio_parity;
+      else
+        throw std::runtime_error(path + ".gray_low_bits: expected \"centre\" or \"slstudio_parity\", got \"" +
+                                 convention + "\"");
+    }
     return c;
   }
 };

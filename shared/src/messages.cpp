@@ -100,6 +100,9 @@ pb::PatternPlanConfig to_proto(const PatternPlanConfig& config) {
   out.set_phase_steps(static_cast<std::uint32_t>(config.phase_steps));
   out.set_complementary_bit(config.complementary_bit);
   out.set_with_white_black(config.with_white_black);
+  out.set_inverse_gray(config.inverse_gray);
+  out.set_gray_low_bits(config.gray_low_bits == GrayLowBits::slstudio_parity ? pb::GRAY_LOW_BITS_SLSTUDIO_PARITY
+                                                                             : pb::GRAY_LOW_BITS_CENTRE);
   return out;
 }
 
@@ -118,6 +121,9 @@ Result<PatternPlanConfig> from_proto(const pb::PatternPlanConfig& config) {
     if (Status status = field(name, value); !status) return status.error();
   if (config.axis() != pb::CODING_AXIS_COLUMNS && config.axis() != pb::CODING_AXIS_ROWS)
     return make_error(Errc::invalid_argument, "pattern plan: axis " + std::to_string(config.axis()) + " is unknown");
+  if (config.gray_low_bits() != pb::GRAY_LOW_BITS_CENTRE && config.gray_low_bits() != pb::GRAY_LOW_BITS_SLSTUDIO_PARITY)
+    return make_error(Errc::invalid_argument,
+                      "pattern plan: gray_low_bits " + std::to_string(config.gray_low_bits()) + " is unknown");
   PatternPlanConfig out;
   out.projector_width = static_cast<int>(config.projector_width());
   out.projector_height = static_cast<int>(config.projector_height());
@@ -126,6 +132,9 @@ Result<PatternPlanConfig> from_proto(const pb::PatternPlanConfig& config) {
   out.phase_steps = static_cast<int>(config.phase_steps());
   out.complementary_bit = config.complementary_bit();
   out.with_white_black = config.with_white_black();
+  out.inverse_gray = config.inverse_gray();
+  out.gray_low_bits =
+      config.gray_low_bits() == pb::GRAY_LOW_BITS_SLSTUDIO_PARITY ? GrayLowBits::slstudio_parity : GrayLowBits::centre;
   if (Status status = out.check(); !status) return status.error();
   return out;
 }

@@ -19,6 +19,20 @@ const char* pattern_kind_name(PatternKind kind) noexcept {
       return "complementary_bit";
     case PatternKind::phase_step:
       return "phase_step";
+    case PatternKind::gray_bit_inverse:
+      return "gray_bit_inverse";
+    case PatternKind::complementary_bit_inverse:
+      return "complementary_bit_inverse";
+  }
+  return "unknown";
+}
+
+const char* gray_low_bits_name(GrayLowBits convention) noexcept {
+  switch (convention) {
+    case GrayLowBits::centre:
+      return "centre";
+    case GrayLowBits::slstudio_parity:
+      return "slstudio_parity";
   }
   return "unknown";
 }
@@ -47,6 +61,19 @@ Status PatternPlanConfig::check() const {
     return fail("the complementary bit needs an even period_px, got " + std::to_string(period_px));
   if (phase_steps != 0 && (phase_steps < 3 || phase_steps > 64))
     return fail("phase_steps " + std::to_string(phase_steps) + " must be 0 (no phase shift) or in [3, 64]");
+  if (gray_low_bits != GrayLowBits::centre && gray_low_bits != GrayLowBits::slstudio_parity)
+    return fail("gray_low_bits is neither centre nor slstudio_parity");
+  if (gray_low_bits == GrayLowBits::slstudio_parity) {
+    // The convention is about a Gray code's unshown low bits: with phase steps the phase gives
+    // the position within a period, and a step of g pixels must be g = 2^s.
+    if (phase_steps != 0)
+      return fail("gray_low_bits slstudio_parity applies to a Gray code without phase steps, got phase_steps " +
+                  std::to_string(phase_steps));
+    const int step = complementary_bit ? period_px / 2 : period_px;
+    if (step < 2 || (step & (step - 1)) != 0)
+      return fail("gray_low_bits slstudio_parity needs a Gray step of 2^s pixels (the unshown low bits), got " +
+                  std::to_string(step));
+  }
   return Ok{};
 }
 
@@ -62,9 +89,15 @@ PatternPlan::PatternPlan(const PatternPlanConfig& config) : config_(config) {
     patterns_.push_back({PatternKind::white, 0, axis});
     patterns_.push_back({PatternKind::black, 0, axis});
   }
-  for (int bit = 0; bit < config.gray_bits(); ++bit)
+  for (int bit = 0; bit < config.gray_bits(); ++bit) {
     patterns_.push_back({PatternKind::gray_bit, static_cast<std::uint16_t>(bit), axis});
-  if (config.complementary_bit) patterns_.push_back({PatternKind::complementary_bit, 0, axis});
+    if (config.inverse_gray)
+      patterns_.push_back({PatternKind::gray_bit_inverse, static_cast<std::uint16_t>(bit), axis});
+  }
+  if (config.complementary_bit) {
+    patterns_.push_back({PatternKind::complementary_bit, 0, axis});
+    if (config.inverse_gray) patterns_.push_back({PatternKind::complementary_bit_inverse, 0, axis});
+  }
   for (int n = 0; n < config.phase_steps; ++n)
     patterns_.push_back({PatternKind::phase_step, static_cast<std::uint16_t>(n), axis});
 }
@@ -83,18 +116,22 @@ float PatternPlan::value(std::size_t i, double coord) const {
       return 1.0f;
     case PatternKind::black:
       return 0.0f;
-    case PatternKind::gray_bit: {
+    case PatternKind::gray_bit:
+    case PatternKind::gray_bit_inverse: {
       // Gray bit `index` (0 = MSB of gray_bits()) of the fringe order k = floor(x / P).
       // Coordinates left of 0 or beyond the extent clamp to the first / last order.
       const auto k = static_cast<std::uint32_t>(
           std::clamp(std::floor(coord / period), 0.0, static_cast<double>(config_.period_count() - 1)));
       const int shift = config_.gray_bits() - 1 - pattern.index;
-      return static_cast<float>((binary_to_gray(k) >> shift) & 1u);
+      const std::uint32_t bit = (binary_to_gray(k) >> shift) & 1u;
+      return static_cast<float>(pattern.kind == PatternKind::gray_bit ? bit : 1u - bit);
     }
-    case PatternKind::complementary_bit: {
+    case PatternKind::complementary_bit:
+    case PatternKind::complementary_bit_inverse: {
       const auto h = static_cast<std::uint32_t>(
           std::clamp(std::floor(2.0 * coord / period), 0.0, static_cast<double>(2 * config_.period_count() - 1)));
-      return static_cast<float>(binary_to_gray(h) & 1u);
+      const std::uint32_t bit = binary_to_gray(h) & 1u;
+      return static_cast<float>(pattern.kind == PatternKind::complementary_bit ? bit : 1u - bit);
     }
     case PatternKind::phase_step: {
       const double two_pi = 2.0 * std::numbers::pi;

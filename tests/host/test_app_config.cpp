@@ -19,6 +19,13 @@ TEST(AppConfig, AppliesValuesAndRoundTrips) {
   EXPECT_DOUBLE_EQ(options.registration.turntable_prior_mm, 0.05);  // untouched: the default
   EXPECT_FALSE(options.build_mesh);
   EXPECT_DOUBLE_EQ(options.voxel_mm, 0.2);
+  apply_config(json::parse(R"({"decode": {"smoothing_radius": 0}, "flying_pixels": {"enabled": false},
+      "turntable_denoise": {"enabled": false}})"),
+               options);
+  EXPECT_EQ(options.decode.smoothing_radius, 0);
+  EXPECT_FALSE(options.remove_flying_pixels);
+  EXPECT_FALSE(options.denoise_turntable);
+  EXPECT_FLOAT_EQ(options.fusion.agreement_mm, 0.35f) << "a second config leaves the first's values";
   // What a report records can be fed back and gives the same parameters.
   core::ReconstructionOptions again;
   apply_config(config_to_json(options), again);
@@ -42,6 +49,7 @@ TEST(AppConfig, MisspeltOrMistypedKeysAreNamed) {
   EXPECT_THROW(apply_config(json::parse(R"({"fuson": {}})"), options), std::invalid_argument);
   EXPECT_THROW(apply_config(json::parse(R"({"registration": {"mode": "magic"}})"), options), std::invalid_argument);
   EXPECT_THROW(apply_config(json::parse(R"({"model": {"voxel_mm": -1}})"), options), std::invalid_argument);
+  EXPECT_THROW(apply_config(json::parse(R"({"decode": {"smoothing_radius": 5}})"), options), std::invalid_argument);
 }
 
 }  // namespace

@@ -40,7 +40,8 @@ struct SceneModel {
 // smooth (defocus removes the pixel steps, leaving its phase).
 double pattern_at(const PatternPlan& plan, std::size_t p, double x) {
   const auto kind = plan[p].kind;
-  const bool binary = kind == slproto::PatternKind::gray_bit || kind == slproto::PatternKind::complementary_bit;
+  const bool binary = kind != slproto::PatternKind::phase_step && kind != slproto::PatternKind::white &&
+                      kind != slproto::PatternKind::black;
   return plan.value(p, binary ? std::floor(x + 0.5) : x);
 }
 
@@ -277,6 +278,177 @@ TEST(Decode, GrayCodeOnlyPlanGivesHalfPeriodCentres) {
   EXPECT_LE(e.max_abs, 2.0 + 1e-6);
 }
 
+// Pixel u sees the centre of projector pixel x = 3 u + 1 (a ramp over 960 of the 1140 columns).
+double integer_columns(int u, int) { return 3.0 * u + 1.0; }
+
+TEST(Decode, InverseGrayFramesGiveExactStepsWithoutWhiteBlack) {
+  for (bool complementary : {false, true}) {
+    SCOPED_TRACE(complementary ? "with the complementary bit" : "Gray bits only");
+    PatternPlanConfig config;
+    config.phase_steps = 0;
+    config.with_white_black = false;
+    config.inverse_gray = true;
+    config.complementary_bit = complementary;
+    const PatternPlan plan(config);
+    ASSERT_EQ(plan.size(), static_cast<std::size_t>(2 * (config.gray_bits() + (complementary ? 1 : 0))));
+    SceneModel scene;
+    scene.coordinate = integer_columns;
+    scene.gamma = 2.2;
+    scene.noise_dn = 1.0;
+    // A dim band (left) and a band whose frames differ from their inverses by 10 DN (right of
+    // 300): both below min_contrast_dn 12 in every bit. The middle has 200 DN of contrast.
+    scene.gain = [](int u, int) { return u < 40 ? 4.0 : (u >= 300 ? 10.0 : 200.0); };
+    scene.black_dn = 8.0;
+    DecodeOptions options;
+    options.smoothing_radius = 0;  // steps, not a phase: nothing to smooth
+    const DecodedView view = decode(plan, scene, options);
+    const double step = complementary ? 4.0 : 8.0;
+    for (int v = 0; v < scene.height; ++v)
+      for (int u = 0; u < scene.width; ++u) {
+        const auto i = static_cast<std::size_t>(v * scene.width + u);
+        if (u < 40 || u >= 300) {
+          ASSERT_EQ(view.mask[i], DecodeMask::low_contrast) << "u " << u;
+          ASSERT_TRUE(std::isnan(view.coordinate[i]));
+          continue;
+        }
+        ASSERT_EQ(view.mask[i], DecodeMask::valid) << "u " << u;
+        const double h = std::floor(integer_columns(u, v) / step);
+        ASSERT_EQ(view.coordinate[i], static_cast<float>(h * step + 0.5 * (step - 1))) << "u " << u;
+        EXPECT_GT(view.quality[i], 150.0f) << "the contrast of a clear pixel is its frame - inverse difference";
+      }
+  }
+}
+
+TEST(Decode, InverseGrayContrastToleratesOneBitAtItsEdgeButNotTwo) {
+  PatternPlanConfig config;
+  config.phase_steps = 0;
+  config.with_white_black = false;
+  config.inverse_gray = true;
+  config.complementary_bit = false;
+  const PatternPlan plan(config);
+  SceneModel scene;
+  scene.coordinate = integer_columns;
+  auto frames = render(plan, scene);
+  const int bit3 = plan.index_of(slproto::PatternKind::gray_bit, 3);
+  const int bit3_inverse = plan.index_of(slproto::PatternKind::gray_bit_inverse, 3);
+  const int bit6 = plan.index_of(slproto::PatternKind::gray_bit, 6);
+  const int bit6_inverse = plan.index_of(slproto::PatternKind::gray_bit_inverse, 6);
+  ASSERT_EQ(bit3_inverse, bit3 + 1) << "each inverse follows its bit";
+  // Columns 100..149: bit 3 unreadable (frame and inverse 2 DN apart), as at a stripe edge.
+  // Columns 200..249: bits 3 and 6 unreadable: not a Gray edge but a blurred or broken code.
+  auto blur = [&](int bit, int inverse, int u0, int u1) {
+    for (int v = 0; v < scene.height; ++v)
+      for (int u = u0; u < u1; ++u) {
+        const auto i = static_cast<std::size_t>(v * scene.width + u);
+        frames[static_cast<std::size_t>(bit)][i] = 100;
+        frames[static_cast<std::size_t>(inverse)][i] = 98;
+      }
+  };
+  blur(bit3, bit3_inverse, 100, 150);
+  blur(bit3, bit3_inverse, 200, 250);
+  blur(bit6, bit6_inverse, 200, 250);
+  DecodeOptions options;
+  options.smoothing_radius = 0;
+  ProjectorViewDecoder decoder(plan, scene.width, scene.height, options);
+  for (std::size_t p = 0; p < frames.size(); ++p) {
+    std::vector<std::uint8_t> narrow(frames[p].begin(), frames[p].end());
+    decoder.add_frame(p, narrow.data(), static_cast<std::size_t>(scene.width));
+  }
+  const DecodedView view = decoder.finish();
+  for (int u = 0; u < scene.width; ++u) {
+    const auto i = static_cast<std::size_t>(u);
+    const bool broken = u >= 200 && u < 250;
+    EXPECT_EQ(view.mask[i], broken ? DecodeMask::low_contrast : DecodeMask::valid) << "u " << u;
+    if (!broken && (u < 100 || u >= 150)) {
+      EXPECT_EQ(view.coordinate[i], static_cast<float>(std::floor(integer_columns(u, 0) / 8) * 8 + 3.5)) << u;
+    }
+  }
+  EXPECT_EQ(view.counts.low_contrast, static_cast<std::size_t>(50 * scene.height));
+}
+
+TEST(Decode, InverseGrayFramesWithPhaseAndWhiteBlack) {
+  // Inverse frames threshold the Gray bits; phase (with and without the complementary bit, with
+  // and without white/black frames) gives the position within the period as usual.
+  for (bool white_black : {false, true})
+    for (bool complementary : {false, true}) {
+      SCOPED_TRACE(std::string(white_black ? "white/black" : "no white/black") +
+                   (complementary ? ", complementary" : ", no complementary"));
+      PatternPlanConfig config;
+      config.inverse_gray = true;
+      config.with_white_black = white_black;
+      config.complementary_bit = complementary;
+      const PatternPlan plan(config);
+      SceneModel scene;
+      scene.coordinate = ramp;
+      scene.gamma = 2.2;
+      scene.noise_dn = 1.0;
+      scene.blur_px = complementary ? 2.0 : 0.0;  // without the complementary bit, edges must be sharp
+      const DecodedView view = decode(plan, scene);
+      const Errors e = errors(view, scene, 8);
+      EXPECT_GT(e.compared, static_cast<std::size_t>(0.99 * scene.width * scene.height));
+      // Without the complementary bit a pixel within the noise of a period edge can still take
+      // the neighbouring order (measured: 6 and 12 of 12,800; 800, i.e. the half pixel before
+      // every phase wrap, before the decoder took the Gray edge's offset into account).
+      EXPECT_LE(e.jumps, complementary ? 0u : e.compared / 500);
+      EXPECT_LT(e.median_abs, 0.02);
+    }
+}
+
+// SLStudio's DecoderGrayCode, bit for bit (jakobwilm/slstudio, read for its convention): the
+// shown Gray bits with the unshown ones read as 0, then Gray -> binary by prefix XOR.
+int slstudio_decode(int column, int bits_not_projected) {
+  int word = ((column >> 1) ^ column) & ~((1 << bits_not_projected) - 1);
+  for (int shift = 1; shift < 16; shift <<= 1) word ^= word >> shift;
+  return word;
+}
+
+TEST(Decode, SlstudioParityConventionMatchesSlstudiosDecoderForEveryColumn) {
+  for (int s = 1; s <= 3; ++s) {
+    SCOPED_TRACE(std::to_string(s) + " bits not projected");
+    PatternPlanConfig config;
+    config.projector_width = 1824;
+    config.projector_height = 1140;
+    config.phase_steps = 0;
+    config.complementary_bit = false;
+    config.period_px = 1 << s;
+    config.gray_low_bits = slproto::GrayLowBits::slstudio_parity;
+    SceneModel scene;
+    scene.width = 1824;
+    scene.height = 2;
+    scene.coordinate = [](int u, int) { return static_cast<double>(u); };
+    DecodeOptions options;
+    options.smoothing_radius = 0;
+    const DecodedView view = decode(PatternPlan(config), scene, options);
+    config.gray_low_bits = slproto::GrayLowBits::centre;
+    const DecodedView centre = decode(PatternPlan(config), scene, options);
+    for (int x = 0; x < 1824; ++x) {
+      ASSERT_EQ(view.mask[static_cast<std::size_t>(x)], DecodeMask::valid);
+      ASSERT_EQ(view.coordinate[static_cast<std::size_t>(x)], static_cast<float>(slstudio_decode(x, s))) << "x " << x;
+      // Half a step left of the centre for even steps, right for odd ones.
+      const int c = x >> s;
+      ASSERT_EQ(view.coordinate[static_cast<std::size_t>(x)] - centre.coordinate[static_cast<std::size_t>(x)],
+                (c & 1 ? 0.5f : -0.5f) * static_cast<float>((1 << s) - 1));
+    }
+  }
+  // The same convention through the complementary bit (a Gray step of P / 2 = 2 pixels) and
+  // inverse frames: step c covers 2c, 2c + 1.
+  PatternPlanConfig config;
+  config.phase_steps = 0;
+  config.period_px = 4;
+  config.inverse_gray = true;
+  config.with_white_black = false;
+  config.gray_low_bits = slproto::GrayLowBits::slstudio_parity;
+  SceneModel scene;
+  scene.width = 1140;
+  scene.height = 2;
+  scene.coordinate = [](int u, int) { return static_cast<double>(u); };
+  DecodeOptions options;
+  options.smoothing_radius = 0;
+  const DecodedView view = decode(PatternPlan(config), scene, options);
+  for (int x = 0; x < 1140; ++x)
+    ASSERT_EQ(view.coordinate[static_cast<std::size_t>(x)], static_cast<float>(slstudio_decode(x, 1))) << "x " << x;
+}
+
 TEST(Decode, FramesInAnyOrderAndWithStride) {
   const PatternPlan plan;
   SceneModel scene;
@@ -341,6 +513,8 @@ TEST(Decode, RejectsMisuseWithClearErrors) {
   unusable.with_white_black = false;
   unusable.phase_steps = 0;
   EXPECT_THROW(ProjectorViewDecoder(PatternPlan(unusable), 8, 8), std::invalid_argument);
+  unusable.inverse_gray = true;  // the inverse frames are a threshold of their own
+  EXPECT_NO_THROW(ProjectorViewDecoder(PatternPlan(unusable), 8, 8));
 }
 
 TEST(Decode, TwelveBitFrames) {

@@ -104,6 +104,78 @@ TEST_F(Import, MismatchesAreNamed) {
             std::string::npos);
 }
 
+TEST_F(Import, InverseGrayFramesFollowTheirBitsAndNeedNoWhiteBlack) {
+  for (int i = 0; i < 4; ++i) write_image("i" + std::to_string(i) + ".png", 40, 30, CV_8U, 200 - 10 * i);
+  const std::string description = R"({"projector": {"width": 64, "height": 32},
+      "gray": {"files": {"pattern": "f%d.png", "first": 2, "count": 4},
+               "inverse_files": ["i0.png", "i1.png", "i2.png", "i3.png"],
+               "bits_not_projected": 2, "convention": "slstudio"}})";
+  const io::SequenceDescription d = io::parse_sequence_description(description, dir_.string());
+  EXPECT_TRUE(d.plan.inverse_gray);
+  EXPECT_FALSE(d.plan.with_white_black);
+  EXPECT_EQ(d.plan.gray_low_bits, slproto::GrayLowBits::slstudio_parity);
+  std::vector<std::string> names;
+  for (const auto& f : d.files) names.push_back(fs::path(f).filename().string());
+  EXPECT_EQ(names,
+            (std::vector<std::string>{"f2.png", "i0.png", "f3.png", "i1.png", "f4.png", "i2.png", "f5.png", "i3.png"}));
+  // The capture carries the whole plan, inverse frames and convention included.
+  const auto sequence = io::read_image_sequence(d);
+  io::write_imported_capture((dir_ / "c.slcap").string(), sequence);
+  io::replay_capture((dir_ / "c.slcap").string(),
+                     [&](const slproto::pb::ScanRequest& request) { EXPECT_EQ(io::plan_of(request).config(), d.plan); },
+                     [](const slproto::pb::FrameHeader&, std::span<const std::byte>) {});
+  // LSB first reverses both lists alike.
+  const auto reversed = io::parse_sequence_description(
+      R"({"projector": {"width": 64, "height": 32},
+          "gray": {"files": ["f2.png", "f3.png", "f4.png", "f5.png"], "inverse_files": ["i0.png", "i1.png", "i2.png",
+                   "i3.png"], "bit_order": "lsb_first", "bits_not_projected": 2}})",
+      dir_.string());
+  EXPECT_EQ(fs::path(reversed.files[0]).filename(), "f5.png");
+  EXPECT_EQ(fs::path(reversed.files[1]).filename(), "i3.png");
+  EXPECT_EQ(reversed.plan.gray_low_bits, slproto::GrayLowBits::centre);
+}
+
+TEST_F(Import, InverseFramesAndConventionMismatchesAreNamed) {
+  auto parse_error = [&](const std::string& description) -> std::string {
+    try {
+      io::parse_sequence_description(description, dir_.string(), "seq.json");
+    } catch (const io::IoError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  const std::string three_inverses = parse_error(R"({"projector": {"width": 64, "height": 32},
+      "gray": {"files": ["f2.png", "f3.png", "f4.png", "f5.png"], "inverse_files": ["i0.png", "i1.png", "i2.png"],
+               "bits_not_projected": 2}})");
+  EXPECT_NE(three_inverses.find("seq.json: gray.inverse_files lists 3 frames but gray.files lists 4"),
+            std::string::npos)
+      << three_inverses;
+  const std::string convention = parse_error(R"({"projector": {"width": 64, "height": 32}, "white": "f0.png",
+      "black": "f1.png", "gray": {"files": ["f2.png", "f3.png", "f4.png", "f5.png"], "bits_not_projected": 2,
+      "convention": "opencv"}})");
+  EXPECT_NE(convention.find("gray.convention must be \"centre\" or \"slstudio\", got \"opencv\""), std::string::npos)
+      << convention;
+  const std::string with_phase = parse_error(R"({"projector": {"width": 64, "height": 32}, "white": "f0.png",
+      "black": "f1.png", "gray": {"files": ["f2.png", "f3.png", "f4.png"], "convention": "slstudio"},
+      "phase": {"files": ["f0.png", "f1.png", "f2.png"], "period_px": 8}})");
+  EXPECT_NE(with_phase.find("gray.convention \"slstudio\" is about a Gray code's unshown low bits"), std::string::npos)
+      << with_phase;
+  const std::string complementary = parse_error(R"({"projector": {"width": 64, "height": 32},
+      "gray": {"files": ["f2.png", "f3.png", "f4.png"], "inverse_files": ["i0.png", "i1.png", "i2.png"]},
+      "complementary": "f5.png", "phase": {"files": ["f0.png", "f1.png", "f2.png"], "period_px": 8}})");
+  EXPECT_NE(complementary.find("the complementary frame needs its inverse too: complementary_inverse"),
+            std::string::npos)
+      << complementary;
+  const std::string old_field = parse_error(R"({"projector": {"width": 64, "height": 32},
+      "gray": {"files": ["f2.png"]}, "inverse": ["f3.png"]})");
+  EXPECT_NE(old_field.find("list the inverse (negative) Gray frames as gray.inverse_files"), std::string::npos)
+      << old_field;
+  const std::string nothing = parse_error(R"({"projector": {"width": 64, "height": 32},
+      "gray": {"files": ["f2.png", "f3.png", "f4.png", "f5.png"], "bits_not_projected": 2}})");
+  EXPECT_NE(nothing.find("give white and black frames, gray.inverse_files or phase frames"), std::string::npos)
+      << nothing;
+}
+
 TEST_F(Import, WritesACaptureThatReplaysInPlanOrder) {
   const auto sequence = io::read_image_sequence(io::parse_sequence_description(describe(), dir_.string()));
   io::write_imported_capture((dir_ / "c.slcap").string(), sequence);

@@ -33,6 +33,38 @@ TEST(Calibration, JsonRoundTripIsExact) {
   EXPECT_EQ(*parsed, cal);
 }
 
+TEST(Calibration, PlanFieldsAddedLaterAreOptional) {
+  RigCalibration cal = example();
+  cal.pattern_plan.phase_steps = 0;
+  cal.pattern_plan.period_px = 2;
+  cal.pattern_plan.complementary_bit = false;
+  cal.pattern_plan.inverse_gray = true;
+  cal.pattern_plan.gray_low_bits = GrayLowBits::slstudio_parity;
+  std::string text = format_calibration(cal);
+  auto parsed = parse_calibration(text);
+  ASSERT_TRUE(parsed.ok()) << parsed.error().message;
+  EXPECT_EQ(*parsed, cal);
+  // A file written before inverse_gray and gray_low_bits existed reads as false / centre.
+  auto without = [&](std::string t, const std::string& key) {
+    const auto pos = t.find("\"" + key + "\"");
+    const auto end = t.find_first_of(",}", pos);
+    t.erase(pos, end - pos + (t[end] == ',' ? 1 : 0));
+    return t;
+  };
+  const RigCalibration old = example();
+  auto read_old = parse_calibration(without(without(format_calibration(old), "inverse_gray"), "gray_low_bits"));
+  ASSERT_TRUE(read_old.ok()) << read_old.error().message;
+  EXPECT_EQ(*read_old, old);
+  const auto pos = text.find("\"slstudio_parity\"");
+  ASSERT_NE(pos, std::string::npos);
+  text.replace(pos, 17, "\"opencv\"");
+  parsed = parse_calibration(text, "cal.json");
+  ASSERT_FALSE(parsed.ok());
+  EXPECT_NE(parsed.error().message.find("pattern_plan.gray_low_bits: expected \"centre\" or \"slstudio_parity\""),
+            std::string::npos)
+      << parsed.error().message;
+}
+
 TEST(Calibration, MissingFieldIsNamed) {
   std::string text = format_calibration(example());
   const auto pos = text.find("\"fy\"");

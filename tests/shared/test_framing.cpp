@@ -349,6 +349,28 @@ TEST(Messages, PatternPlanRoundTripAndValidation) {
   ASSERT_TRUE(back.ok()) << back.error().message;
   EXPECT_EQ(*back, config);
 
+  // The later fields: inverse Gray frames and SLStudio's convention survive the round trip.
+  PatternPlanConfig gray_only;
+  gray_only.phase_steps = 0;
+  gray_only.period_px = 2;
+  gray_only.complementary_bit = false;
+  gray_only.inverse_gray = true;
+  gray_only.gray_low_bits = GrayLowBits::slstudio_parity;
+  back = from_proto(to_proto(gray_only));
+  ASSERT_TRUE(back.ok()) << back.error().message;
+  EXPECT_EQ(*back, gray_only);
+  // A capture written before them has neither field: it reads as no inverse, centre.
+  pb::PatternPlanConfig old = to_proto(config);
+  old.clear_inverse_gray();
+  old.clear_gray_low_bits();
+  ASSERT_TRUE(from_proto(old).ok());
+  EXPECT_FALSE(from_proto(old)->inverse_gray);
+  EXPECT_EQ(from_proto(old)->gray_low_bits, GrayLowBits::centre);
+  pb::PatternPlanConfig unknown = to_proto(gray_only);
+  unknown.set_gray_low_bits(static_cast<pb::GrayLowBits>(7));
+  ASSERT_FALSE(from_proto(unknown).ok());
+  EXPECT_THAT(from_proto(unknown).error().message, HasSubstr("gray_low_bits 7 is unknown"));
+
   pb::PatternPlanConfig zero;  // proto3 defaults: every field 0
   EXPECT_FALSE(from_proto(zero).ok());
   pb::PatternPlanConfig huge = to_proto(PatternPlanConfig{});

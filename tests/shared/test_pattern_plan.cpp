@@ -97,6 +97,55 @@ TEST(PatternPlan, RejectsImpossibleConfigurations) {
   EXPECT_FALSE(PatternPlan::make(config).ok());
 }
 
+TEST(PatternPlan, InverseGrayFramesFollowTheirBits) {
+  PatternPlanConfig config;
+  config.inverse_gray = true;
+  config.with_white_black = false;
+  PatternPlan plan(config);
+  // 8 Gray bits and the complementary bit, each followed by its inverse, then 8 phase steps.
+  ASSERT_EQ(plan.size(), 26u);
+  EXPECT_EQ(config.code_frames(), 18);
+  for (int b = 0; b < 8; ++b) {
+    EXPECT_EQ(plan[static_cast<std::size_t>(2 * b)], (Pattern{PatternKind::gray_bit, static_cast<std::uint16_t>(b)}));
+    EXPECT_EQ(plan[static_cast<std::size_t>(2 * b + 1)],
+              (Pattern{PatternKind::gray_bit_inverse, static_cast<std::uint16_t>(b)}));
+  }
+  EXPECT_EQ(plan[16].kind, PatternKind::complementary_bit);
+  EXPECT_EQ(plan[17].kind, PatternKind::complementary_bit_inverse);
+  EXPECT_EQ(plan[18].kind, PatternKind::phase_step);
+  EXPECT_STREQ(pattern_kind_name(plan[1].kind), "gray_bit_inverse");
+  // Each inverse is 1 - its bit at every column (what the projector and the rig render).
+  for (int x = 0; x < 1140; ++x)
+    for (std::size_t i = 0; i < 18; i += 2) ASSERT_EQ(plan.value(i + 1, x), 1.0f - plan.value(i, x)) << x;
+  std::vector<std::uint8_t> bit(1140 * 912), inverse(1140 * 912);
+  plan.render(0, bit);
+  plan.render(1, inverse);
+  for (std::size_t i = 0; i < bit.size(); ++i) ASSERT_EQ(bit[i] + inverse[i], 255) << i;
+}
+
+TEST(PatternPlan, SlstudioConventionNeedsAGrayCodeWithPowerOfTwoSteps) {
+  PatternPlanConfig config;
+  config.gray_low_bits = GrayLowBits::slstudio_parity;
+  auto plan = PatternPlan::make(config);  // the default plan has phase steps
+  ASSERT_FALSE(plan.ok());
+  EXPECT_NE(plan.error().message.find("applies to a Gray code without phase steps, got phase_steps 8"),
+            std::string::npos)
+      << plan.error().message;
+  config.phase_steps = 0;
+  config.complementary_bit = false;
+  config.period_px = 6;
+  plan = PatternPlan::make(config);
+  ASSERT_FALSE(plan.ok());
+  EXPECT_NE(plan.error().message.find("a Gray step of 2^s pixels"), std::string::npos) << plan.error().message;
+  config.period_px = 8;
+  EXPECT_TRUE(PatternPlan::make(config).ok());
+  config.complementary_bit = true;  // step 4
+  EXPECT_TRUE(PatternPlan::make(config).ok());
+  config.period_px = 12;  // step 6
+  EXPECT_FALSE(PatternPlan::make(config).ok());
+  EXPECT_STREQ(gray_low_bits_name(GrayLowBits::slstudio_parity), "slstudio_parity");
+}
+
 TEST(GrayCode, RoundTrips) {
   for (std::uint32_t n = 0; n < 70000; ++n) ASSERT_EQ(gray_to_binary(binary_to_gray(n)), n);
 }

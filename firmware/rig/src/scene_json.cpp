@@ -297,6 +297,13 @@ Scene read_scene(const json& root, const std::string& base_dir) {
     p.integer("phase_steps", c.phase_steps);
     p.boolean("complementary_bit", c.complementary_bit);
     p.boolean("with_white_black", c.with_white_black);
+    p.boolean("inverse_gray", c.inverse_gray);
+    std::string convention;
+    p.string("gray_low_bits", convention);
+    if (convention == "slstudio_parity")
+      c.gray_low_bits = slproto::GrayLowBits::slstudio_parity;
+    else if (!convention.empty() && convention != "centre")
+      throw ParseError{"pattern_plan.gray_low_bits: '" + convention + "' is not centre or slstudio_parity"};
     p.finish();
   }
   if (const json* v = r.get("view_angles_deg")) scene.view_angles_deg = r.numbers("view_angles_deg", *v, 0);
@@ -444,7 +451,9 @@ std::string format_scene(const Scene& scene) {
                           {"period_px", c.period_px},
                           {"phase_steps", c.phase_steps},
                           {"complementary_bit", c.complementary_bit},
-                          {"with_white_black", c.with_white_black}};
+                          {"with_white_black", c.with_white_black},
+                          {"inverse_gray", c.inverse_gray},
+                          {"gray_low_bits", slproto::gray_low_bits_name(c.gray_low_bits)}};
   root["view_angles_deg"] = scene.view_angles_deg;
   return root.dump(2) + "\n";
 }

@@ -146,6 +146,10 @@ const char* kind_suffix(const slproto::Pattern& p) {
       return "gray";
     case slproto::PatternKind::complementary_bit:
       return "comp";
+    case slproto::PatternKind::gray_bit_inverse:
+      return "gray_inv";
+    case slproto::PatternKind::complementary_bit_inverse:
+      return "comp_inv";
     case slproto::PatternKind::phase_step:
       return "phase";
   }

@@ -51,16 +51,21 @@ ProjectorViewDecoder::ProjectorViewDecoder(const slproto::PatternPlan& plan, int
   white_ = plan.index_of(PatternKind::white);
   black_ = plan.index_of(PatternKind::black);
   complementary_ = plan.index_of(PatternKind::complementary_bit);
-  for (int bit = 0; bit < config.gray_bits(); ++bit) gray_.push_back(plan.index_of(PatternKind::gray_bit, bit));
+  complementary_inverse_ = plan.index_of(PatternKind::complementary_bit_inverse);
+  for (int bit = 0; bit < config.gray_bits(); ++bit) {
+    gray_.push_back(plan.index_of(PatternKind::gray_bit, bit));
+    if (config.inverse_gray) gray_inverse_.push_back(plan.index_of(PatternKind::gray_bit_inverse, bit));
+  }
   for (int n = 0; n < config.phase_steps; ++n) {
     phase_.push_back(plan.index_of(PatternKind::phase_step, n));
     const double d = 2.0 * std::numbers::pi * n / config.phase_steps;
     phase_cos_.push_back(static_cast<float>(std::cos(d)));
     phase_sin_.push_back(static_cast<float>(std::sin(d)));
   }
-  if ((white_ < 0 || black_ < 0) && phase_.empty())
+  if ((white_ < 0 || black_ < 0) && phase_.empty() && gray_inverse_.empty())
     throw std::invalid_argument(
-        "decoder: the plan has neither white/black frames nor phase steps to threshold the Gray bits against");
+        "decoder: the plan has neither white/black frames, inverse Gray frames nor phase steps to threshold the Gray "
+        "bits against");
   bytes_per_pixel_ = options_.bit_depth > 8 ? 2 : 1;
   store_.resize(plan.size() * static_cast<std::size_t>(width) * static_cast<std::size_t>(height) * bytes_per_pixel_);
   present_.assign(plan.size(), 0);
@@ -156,6 +161,7 @@ struct TileSums {
   alignas(64) float sum_cos[kTileColumns];
   alignas(64) float sum[kTileColumns];
   alignas(64) std::uint32_t code[kTileColumns];
+  alignas(64) float second_contrast[kTileColumns];  // with inverse Gray frames only
   // The per-pixel results before masking; the reason is a DecodeMask as a float so that the
   // arithmetic loop has one element width (GCC 12 then vectorises it).
   alignas(64) float value[kTileColumns];
@@ -165,6 +171,12 @@ struct TileSums {
 
 struct TileConstants {
   float period, extent_max, min_contrast, min_modulation, modulation_scale;
+  // Gray code alone: step h covers pixels [h step, (h + 1) step - 1] and decodes to
+  // h step + low_offset + (h & 1) parity_offset (the centre, or SLStudio's pixel of the step).
+  float step, low_offset, parity_offset;
+  // Phase without the complementary bit: a phase at or above this (2 pi (1 - 0.5 / P)) belongs
+  // to the previous Gray order.
+  float late_phase;
 };
 
 template <bool kPhase, bool kComplementary, class Pixel>
@@ -201,16 +213,17 @@ void finish_tile(int n, TileSums& t, const Pixel* __restrict max_value, Pixel sa
         order = phi >= kThreeHalfPi ? k2 - 1.0f : order;
         order = phi < kHalfPi ? k2 : order;
       } else {
+        // Gray order h covers pixels [h P - 0.5, (h + 1) P - 0.5) but the phase wraps at h P:
+        // over the half pixel before the wrap the phase is already near 2 pi, one order late.
         order = static_cast<float>(static_cast<int>(h));
+        order = phi >= k.late_phase ? order - 1.0f : order;
       }
       coord = (phi / kTwoPi + order) * k.period;
       q = k.modulation_scale * std::sqrt(s * s + c * c);
-    } else if constexpr (kComplementary) {
-      // Gray code alone: the centre of the half period h covers pixels [h P/2, (h+1) P/2 - 1].
-      coord = static_cast<float>(h) * 0.5f * k.period + 0.25f * k.period - 0.5f;
-      q = contrast;
     } else {
-      coord = static_cast<float>(h) * k.period + 0.5f * k.period - 0.5f;
+      // Gray code alone (h counts half periods with the complementary bit): one formula for
+      // both conventions, so the convention costs no test per pixel.
+      coord = static_cast<float>(h) * k.step + k.low_offset + static_cast<float>(h & 1u) * k.parity_offset;
       q = contrast;
     }
     // The first reason that applies: selects from the last reason to the first.
@@ -264,11 +277,22 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
   const bool with_white_black = white_ >= 0 && black_ >= 0;
   const bool with_phase = !phase_.empty();
   const bool with_complementary = complementary_ >= 0;
+  const bool with_inverse = !gray_inverse_.empty();
   const int steps = static_cast<int>(phase_.size());
   const auto saturation = static_cast<Pixel>(std::min(options_.saturation_level(), 65535));
-  const TileConstants constants{static_cast<float>(config.period_px), static_cast<float>(config.coded_extent()) - 0.5f,
-                                options_.min_contrast_dn, options_.min_modulation_dn,
-                                with_phase ? 2.0f / static_cast<float>(steps) : 0.0f};
+  const float gray_step = static_cast<float>(config.period_px) * (with_complementary ? 0.5f : 1.0f);
+  const bool slstudio = config.gray_low_bits == slproto::GrayLowBits::slstudio_parity;
+  const TileConstants constants{
+      static_cast<float>(config.period_px),
+      static_cast<float>(config.coded_extent()) - 0.5f,
+      options_.min_contrast_dn,
+      options_.min_modulation_dn,
+      with_phase ? 2.0f / static_cast<float>(steps) : 0.0f,
+      gray_step,
+      slstudio ? 0.0f : 0.5f * (gray_step - 1.0f),
+      slstudio ? gray_step - 1.0f : 0.0f,
+      2.0f * std::numbers::pi_v<float> * (1.0f - 0.5f / static_cast<float>(config.period_px))};
+  const std::size_t code_bits = gray_.size() + (with_complementary ? 1 : 0);
   const std::size_t pattern_count = plan_.size();
 
   TileSums t;
@@ -279,6 +303,7 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
   float* __restrict sum_cos = t.sum_cos;
   float* __restrict sum = t.sum;
   std::uint32_t* __restrict code = t.code;
+  float* __restrict second_contrast = t.second_contrast;
 
   for (int y = row_begin; y < row_end; ++y) {
     const std::size_t row_offset = static_cast<std::size_t>(y) * static_cast<std::size_t>(w);
@@ -319,7 +344,9 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
           }
         }
       }
-      if (with_white_black) {
+      if (with_inverse) {
+        // The contrast comes with the bits below.
+      } else if (with_white_black) {
         const Pixel* __restrict white = tile_of(white_);
         const Pixel* __restrict black = tile_of(black_);
         for (int x = 0; x < n; ++x) {
@@ -343,8 +370,34 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
         for (int x = 0; x < n; ++x)
           code[x] = (code[x] << 1) | (2.0f * static_cast<float>(in[x]) > threshold2[x] ? 1u : 0u);
       };
-      for (int pattern : gray_) add_bit(pattern);
-      if (with_complementary) add_bit(complementary_);
+      if (with_inverse) {
+        // A bit is 1 where the frame is brighter than its inverse. The pixel's contrast is the
+        // second smallest |frame - inverse| over the code bits: at any coordinate at most one
+        // bit of a Gray code (the complementary bit included) is near its edge, where a small
+        // difference is expected and either reading gives a neighbouring step; every other bit
+        // must be clear, which rejects shadows and bits blurred beyond reading alike.
+        constexpr float kInfinity = std::numeric_limits<float>::infinity();
+        std::fill(contrast, contrast + n, kInfinity);
+        std::fill(second_contrast, second_contrast + n, kInfinity);
+        auto add_inverse_bit = [&](int pattern, int inverse) {
+          const Pixel* __restrict in = tile_of(pattern);
+          const Pixel* __restrict inv = tile_of(inverse);
+          for (int x = 0; x < n; ++x) code[x] = (code[x] << 1) | (in[x] > inv[x] ? 1u : 0u);
+          for (int x = 0; x < n; ++x) {
+            const float d = std::fabs(static_cast<float>(in[x]) - static_cast<float>(inv[x]));
+            const float lowest = contrast[x];
+            const float above = lowest > d ? lowest : d;
+            second_contrast[x] = second_contrast[x] < above ? second_contrast[x] : above;
+            contrast[x] = lowest < d ? lowest : d;
+          }
+        };
+        for (std::size_t bit = 0; bit < gray_.size(); ++bit) add_inverse_bit(gray_[bit], gray_inverse_[bit]);
+        if (with_complementary) add_inverse_bit(complementary_, complementary_inverse_);
+        if (code_bits >= 2) std::copy(second_contrast, second_contrast + n, contrast);
+      } else {
+        for (int pattern : gray_) add_bit(pattern);
+        if (with_complementary) add_bit(complementary_);
+      }
 
       float* coordinate = out.coordinate.data() + offset;
       float* quality = out.quality.data() + offset;
@@ -355,10 +408,8 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
         else
           finish_tile<true, false>(n, t, max_value, saturation, constants, coordinate, quality, mask);
       } else {
-        if (with_complementary)
-          finish_tile<false, true>(n, t, max_value, saturation, constants, coordinate, quality, mask);
-        else
-          finish_tile<false, false>(n, t, max_value, saturation, constants, coordinate, quality, mask);
+        // Gray code alone: the constants carry the complementary bit's finer step.
+        finish_tile<false, false>(n, t, max_value, saturation, constants, coordinate, quality, mask);
       }
     }
     count_masks(out.mask.data() + row_offset, w, counts);

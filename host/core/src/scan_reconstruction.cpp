@@ -32,6 +32,11 @@ void ReconstructionOptions::check() const {
     throw std::invalid_argument("reconstruction options: normal_neighbors must be 0 (the views' grid normals) or >= 3");
   if (outliers.k < 1 || !(outliers.std_ratio > 0))
     throw std::invalid_argument("reconstruction options: outliers need k >= 1 and std_ratio > 0");
+  if (grid_normals.window_radius < 1 || grid_normals.window_radius > 8 ||
+      !(grid_normals.max_neighbor_distance_mm > 0) || grid_normals.min_neighbors < 3)
+    throw std::invalid_argument(
+        "reconstruction options: normals need window_radius in [1, 8], max_neighbor_distance_mm > 0 and "
+        "min_neighbors >= 3");
   if (max_pending_projector_views < 1)
     throw std::invalid_argument("reconstruction options: max_pending_projector_views must be >= 1");
 }

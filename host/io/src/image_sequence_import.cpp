@@ -86,15 +86,14 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
     fail(origin, std::string("not valid JSON: ") + e.what());
   }
   if (!doc.is_object()) fail(origin, "the description must be a JSON object");
-  static const char* known[] = {"projector", "axis",  "camera",        "white",   "black",
-                                "gray",      "phase", "complementary", "inverse", "comment"};
+  static const char* known[] = {
+      "projector", "axis",   "camera", "white", "black", "gray", "phase", "complementary", "complementary_inverse",
+      "image_dir", "comment"};
+  if (doc.contains("inverse"))
+    fail(origin, "unknown field 'inverse': list the inverse (negative) Gray frames as gray.inverse_files");
   for (const auto& [key, value] : doc.items())
     if (std::find(std::begin(known), std::end(known), key) == std::end(known))
       fail(origin, "unknown field '" + key + "'");
-  if (doc.contains("inverse"))
-    fail(origin,
-         "inverse (negative) Gray frames are not supported yet: describe the sequence with white and black "
-         "frames, or phase frames, to threshold against");
 
   SequenceDescription d;
   if (!doc.contains("projector") || !doc["projector"].is_object()) fail(origin, "projector {width, height} is missing");
@@ -120,15 +119,35 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
   if (!doc.contains("gray") || !doc["gray"].is_object())
     fail(origin, "gray {files, bit_order, bits_not_projected} is missing");
   const json& gray = doc["gray"];
+  static const char* known_gray[] = {"files", "inverse_files", "bit_order", "bits_not_projected", "convention"};
   for (const auto& [key, value] : gray.items())
-    if (key != "files" && key != "bit_order" && key != "bits_not_projected")
+    if (std::find(std::begin(known_gray), std::end(known_gray), key) == std::end(known_gray))
       fail(origin, "unknown field 'gray." + key + "'");
   if (!gray.contains("files")) fail(origin, "gray.files is missing");
   std::vector<std::string> gray_files = file_list(gray["files"], origin, "gray.files");
+  std::vector<std::string> inverse_files;
+  if (gray.contains("inverse_files")) {
+    inverse_files = file_list(gray["inverse_files"], origin, "gray.inverse_files");
+    if (inverse_files.size() != gray_files.size())
+      fail(origin, "gray.inverse_files lists " + std::to_string(inverse_files.size()) +
+                       " frames but gray.files lists " + std::to_string(gray_files.size()) +
+                       ": each Gray frame needs its inverse");
+  }
+  d.plan.inverse_gray = !inverse_files.empty();
   const std::string order = gray.value("bit_order", std::string("msb_first"));
   if (order != "msb_first" && order != "lsb_first")
     fail(origin, "gray.bit_order must be \"msb_first\" or \"lsb_first\", got \"" + order + "\"");
-  if (order == "lsb_first") std::reverse(gray_files.begin(), gray_files.end());
+  if (order == "lsb_first") {
+    std::reverse(gray_files.begin(), gray_files.end());
+    std::reverse(inverse_files.begin(), inverse_files.end());
+  }
+  if (gray.contains("convention")) {
+    const json& convention = gray["convention"];
+    if (convention == "slstudio")
+      d.plan.gray_low_bits = slproto::GrayLowBits::slstudio_parity;
+    else if (convention != "centre")
+      fail(origin, "gray.convention must be \"centre\" or \"slstudio\", got " + convention.dump());
+  }
   const int not_projected = gray.value("bits_not_projected", 0);
   if (not_projected < 0 || not_projected > 12) fail(origin, "gray.bits_not_projected must be in [0, 12]");
 
@@ -154,8 +173,20 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
   d.plan.complementary_bit = doc.contains("complementary");
   if (d.plan.complementary_bit && phase_files.empty())
     fail(origin, "a complementary bit without phase frames is one more Gray bit: list it last in gray.files");
-  if (!d.plan.with_white_black && phase_files.empty())
-    fail(origin, "nothing to threshold the Gray frames against: give white and black frames or phase frames");
+  if (d.plan.complementary_bit && d.plan.inverse_gray != doc.contains("complementary_inverse"))
+    fail(origin, d.plan.inverse_gray
+                     ? "with gray.inverse_files the complementary frame needs its inverse too: complementary_inverse"
+                     : "complementary_inverse is given but gray.inverse_files is not");
+  if (!d.plan.complementary_bit && doc.contains("complementary_inverse"))
+    fail(origin, "complementary_inverse is given without complementary");
+  if (!d.plan.with_white_black && phase_files.empty() && !d.plan.inverse_gray)
+    fail(origin,
+         "nothing to threshold the Gray frames against: give white and black frames, gray.inverse_files or phase "
+         "frames");
+  if (d.plan.gray_low_bits == slproto::GrayLowBits::slstudio_parity && !phase_files.empty())
+    fail(origin,
+         "gray.convention \"slstudio\" is about a Gray code's unshown low bits; with phase frames the phase "
+         "gives the position within a period: leave it out");
   if (auto status = d.plan.check(); !status) fail(origin, status.error().message);
   if (static_cast<int>(gray_files.size()) != d.plan.gray_bits())
     fail(origin, "gray.files lists " + std::to_string(gray_files.size()) + " frames but a Gray code of " +
@@ -178,12 +209,21 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
       case slproto::PatternKind::complementary_bit:
         d.files.push_back(file_name(doc["complementary"], origin, "complementary"));
         break;
+      case slproto::PatternKind::gray_bit_inverse:
+        d.files.push_back(inverse_files[pattern.index]);
+        break;
+      case slproto::PatternKind::complementary_bit_inverse:
+        d.files.push_back(file_name(doc["complementary_inverse"], origin, "complementary_inverse"));
+        break;
       case slproto::PatternKind::phase_step:
         d.files.push_back(phase_files[pattern.index]);
         break;
     }
   }
-  for (auto& f : d.files) f = resolve(base_dir, f);
+  // image_dir lets a description live apart from its images (docs/examples/).
+  const std::string image_dir =
+      doc.contains("image_dir") ? resolve(base_dir, file_name(doc["image_dir"], origin, "image_dir")) : base_dir;
+  for (auto& f : d.files) f = resolve(image_dir, f);
   return d;
 }
 

@@ -11,6 +11,9 @@
 //    bits of gray(h) equal gray(k), so the m + 1 frames together give h, and the
 //    complementary order K2 = floor((h + 1) / 2) = floor((x + P / 2) / P) is shifted by half a
 //    period against k. The decoder uses K2 where the wrapped phase is near a period edge.
+//  * Inverse Gray frames (inverse_gray): each Gray bit, and the complementary bit, is
+//    followed by its inverse (1 - value). The decoder then reads a bit as 1 where the frame is
+//    brighter than its inverse, a threshold that needs no white/black frames.
 //  * Pattern images are rendered at pixel centres (x = column index); a bright pixel is 1.0.
 #pragma once
 
@@ -31,10 +34,28 @@ enum class PatternKind : std::uint8_t {
   gray_bit = 2,           // index = bit number, 0 = most significant
   complementary_bit = 3,  // the half-period Gray bit (index 0)
   phase_step = 4,         // index = step n in 0..N-1
+  gray_bit_inverse = 5,   // the inverse of gray_bit `index`, shown right after it
+  complementary_bit_inverse = 6,
+};
+
+// Which projector coordinate a Gray code without phase steps decodes to. A decoded step c
+// numbers the g = period_px (or period_px / 2 with the complementary bit) pixels
+// c g ... c g + g - 1 of the coding axis.
+enum class GrayLowBits : std::uint8_t {
+  // Their centre, c g + (g - 1) / 2: the estimate with the smallest error for a pixel that
+  // may see any of them.
+  centre = 0,
+  // SLStudio's DecoderGrayCode (jakobwilm/slstudio), which reads the unshown low bits of the
+  // code as 0 and converts that word to binary: its low bits all equal c's parity, so it
+  // returns c g + (c & 1) (g - 1), the first pixel of the step for even c and the last for odd
+  // c. Needs a power-of-two g (the unshown bits of a binary code). For reprocessing captures
+  // whose calibration and reference were made with that decoder (docs/real-data.md).
+  slstudio_parity = 1,
 };
 
 const char* pattern_kind_name(PatternKind kind) noexcept;
 const char* coding_axis_name(CodingAxis axis) noexcept;
+const char* gray_low_bits_name(GrayLowBits convention) noexcept;  // "centre", "slstudio_parity"
 
 struct Pattern {
   PatternKind kind = PatternKind::white;
@@ -51,6 +72,8 @@ struct PatternPlanConfig {
   int phase_steps = 8;  // N
   bool complementary_bit = true;
   bool with_white_black = true;
+  bool inverse_gray = false;                        // each Gray (and complementary) bit followed by its inverse frame
+  GrayLowBits gray_low_bits = GrayLowBits::centre;  // only for plans without phase steps
   bool operator==(const PatternPlanConfig&) const = default;
 
   // Coded extent along the axis (width for columns, height for rows).
@@ -58,6 +81,8 @@ struct PatternPlanConfig {
   // Number of fringe periods and of Gray bits needed to number them.
   int period_count() const;
   int gray_bits() const;
+  // Frames of the code bits: Gray bits and the complementary bit, with their inverses.
+  int code_frames() const { return (gray_bits() + (complementary_bit ? 1 : 0)) * (inverse_gray ? 2 : 1); }
   Status check() const;  // names the first impossible field
 };
 

@@ -5,8 +5,15 @@
 // Conventions (docs/conventions.md): the wrapped phase is
 // phi = atan2(-sum I_n sin d_n, sum I_n cos d_n) in [0, 2 pi), d_n = 2 pi n / N; the order k
 // comes from the Gray bits; with the complementary bit, K2 is used where phi is in [0, pi/2)
-// and K2 - 1 where phi is in [3 pi/2, 2 pi); x_p = (phi + 2 pi order) P / (2 pi), so a camera
+// and K2 - 1 where phi is in [3 pi/2, 2 pi); without it, k - 1 where phi is in
+// [2 pi (1 - 0.5 / P), 2 pi) (the Gray edge lies half a pixel before the phase wrap, between
+// projector pixels); x_p = (phi + 2 pi order) P / (2 pi), so a camera
 // pixel that sees the centre of projector column 100 decodes to 100.0.
+//
+// A Gray bit is 1 where its frame is brighter than half of white + black (or, without
+// white/black frames, than the phase frames' mean); with inverse Gray frames, where it is
+// brighter than its inverse. Without phase steps the coordinate is a Gray step's centre, or
+// SLStudio's pixel of it (PatternPlanConfig::gray_low_bits).
 //
 // Frames are copied into a per-pattern store as they stream in (the camera's buffer goes back
 // to the driver at once); finish() then decodes in tiles of rows over all planes at once,
@@ -47,8 +54,10 @@ struct DecodeOptions {
 // Why a pixel was masked (one reason per pixel, the first that applies in this order).
 enum class DecodeMask : std::uint8_t {
   valid = 0,
-  saturated = 1,       // at the top code in some frame: its intensities are clipped
-  low_contrast = 2,    // white - black (or the phase peak-to-peak) below min_contrast_dn
+  saturated = 1,  // at the top code in some frame: its intensities are clipped
+  // white - black (or the phase peak-to-peak; or with inverse Gray frames, the second smallest
+  // |bit - inverse| over the code bits) below min_contrast_dn
+  low_contrast = 2,
   low_modulation = 3,  // phase modulation below min_modulation_dn
   out_of_range = 4,    // decoded coordinate outside the projector's coded extent
 };
@@ -72,8 +81,8 @@ struct DecodedView {
 // finish() itself) readies it for the next view without reallocating.
 class ProjectorViewDecoder {
  public:
-  // Throws std::invalid_argument if the plan can't be decoded (neither white/black nor phase
-  // steps to threshold the Gray bits against), the size is impossible or options fail check().
+  // Throws std::invalid_argument if the plan can't be decoded (neither white/black, inverse
+  // Gray frames nor phase steps to threshold the Gray bits against), the size is impossible or options fail check().
   ProjectorViewDecoder(const slproto::PatternPlan& plan, int width, int height, const DecodeOptions& options = {});
 
   int width() const { return width_; }
@@ -110,9 +119,10 @@ class ProjectorViewDecoder {
   std::vector<std::uint8_t> store_;  // one plane per pattern, width * height pixels each
   std::vector<std::uint8_t> present_;
   // Where each kind of pattern sits in the plan (-1 if absent), in decode order.
-  int white_ = -1, black_ = -1, complementary_ = -1;
-  std::vector<int> gray_;   // gray_[bit] = pattern index, bit 0 = most significant
-  std::vector<int> phase_;  // phase_[n] = pattern index of step n
+  int white_ = -1, black_ = -1, complementary_ = -1, complementary_inverse_ = -1;
+  std::vector<int> gray_;          // gray_[bit] = pattern index, bit 0 = most significant
+  std::vector<int> gray_inverse_;  // its inverse frame, when the plan has them
+  std::vector<int> phase_;         // phase_[n] = pattern index of step n
   std::vector<float> phase_cos_, phase_sin_;
   std::vector<float> raw_coordinate_;  // before smoothing, reused
 };

@@ -8,12 +8,16 @@
 //     "camera": {"width": 1688, "height": 1352, "bit_depth": 8},          (optional, checked)
 //     "white": "frameSeq_00.bmp", "black": "frameSeq_01.bmp",             (optional pair)
 //     "gray": {"files": {"pattern": "frameSeq_%02d.bmp", "first": 2, "count": 10},
-//              "bit_order": "msb_first", "bits_not_projected": 1},
-//     "phase": {"files": [...], "period_px": 16} }                        (optional)
+//              "inverse_files": [...],                                    (optional, same count)
+//              "bit_order": "msb_first", "bits_not_projected": 1,
+//              "convention": "centre"},                                   (or "slstudio")
+//     "phase": {"files": [...], "period_px": 16},                         (optional)
+//     "complementary": "c.png", "complementary_inverse": "ci.png" }       (optional, with phase)
 //
 // The Gray frames show the reflected Gray code of the projector coordinate, of which the
 // `bits_not_projected` least significant bits are left out; since the top bits of gray(x)
-// are gray(x >> s), that is our plan with period_px = 2^s and no phase steps.
+// are gray(x >> s), that is our plan with period_px = 2^s and no phase steps. Inverse frames
+// become the plan's inverse_gray; the convention its gray_low_bits.
 #pragma once
 
 #include <cstdint>
