@@ -397,10 +397,11 @@ TEST_F(LiveScan, ReportHtmlDrawsTheCloudInHeadlessChromium) {
   const std::size_t model_points = report("live")["scan"]["model"]["points"].get<std::size_t>();
   EXPECT_EQ(embedded, std::min<std::size_t>(model_points, 200000));
   EXPECT_EQ(std::stoul(attribute("data-points-drawn")), embedded);
-  EXPECT_GT(std::stoul(attribute("data-nonblank-pixels")), 10000u) << "the canvas is (nearly) empty";
+  // The small rig's ~30k points cover ~19k pixels of the 1200 x 560 canvas; an empty one, 0.
+  EXPECT_GT(std::stoul(attribute("data-nonblank-pixels")), 5000u) << "the canvas is (nearly) empty";
 
-  // A screenshot, as a person would see it: inside the canvas, the cloud covers a good part of
-  // the area and is shaded (many grey levels), not a flat fill.
+  // A screenshot, as a person would see it: inside the canvas the cloud is there (~3% of the
+  // area at the default zoom) and shaded (many grey levels), not a flat fill.
   args = browser_args(*browser, dir_ / "profile-shot");
   const fs::path shot = dir_ / "report.png";
   args.push_back("--screenshot=" + shot.string());
@@ -426,7 +427,7 @@ TEST_F(LiveScan, ReportHtmlDrawsTheCloudInHeadlessChromium) {
         levels.insert((p[0] + p[1] + p[2]) / 3);
       }
     }
-  EXPECT_GT(covered, static_cast<std::size_t>(area.area()) / 50) << "the cloud covers under 2% of the viewer";
+  EXPECT_GT(covered, static_cast<std::size_t>(area.area()) / 200) << "the cloud covers under 0.5% of the viewer";
   EXPECT_GT(levels.size(), 20u) << "the cloud is drawn flat, not shaded";
 }
 

@@ -44,11 +44,12 @@ function readCloud() {
   return { count, positions, normals: n, cloud };
 }
 
-// Colour by height (blue low, yellow high) and shade by the normal toward a light above the
-// eye, so a person sees both the shape and which way the surfaces face.
+// Colour by height (blue low, orange high) and shade by the (outward) normal toward a light
+// above and behind the default eye, so a person sees both the shape and which way the surfaces
+// face.
 function colours(positions, normals, count, zmin, zmax) {
   const out = new Float32Array(3 * count);
-  const light = new Vector3(0.3, -0.5, 0.8).normalize();
+  const light = new Vector3(0.5, -1.0, 1.2).normalize();
   const low = new Color(0x2c7bb6), high = new Color(0xfdae61), c = new Color();
   const span = zmax > zmin ? zmax - zmin : 1;
   for (let i = 0; i < count; ++i) {
@@ -56,11 +57,14 @@ function colours(positions, normals, count, zmin, zmax) {
     let shade = 0.85;
     if (normals.length) {
       const d = (normals[3 * i] * light.x + normals[3 * i + 1] * light.y + normals[3 * i + 2] * light.z) / 127;
-      shade = 0.35 + 0.65 * Math.abs(d);
+      shade = 0.25 + 0.75 * Math.max(0, d);
     }
-    out[3 * i] = c.r * shade;
-    out[3 * i + 1] = c.g * shade;
-    out[3 * i + 2] = c.b * shade;
+    // Vertex colours are linear and the output is sRGB: shade in sRGB terms, or the dark sides
+    // come out barely darker than the lit ones.
+    const linear = Math.pow(shade, 2.2);
+    out[3 * i] = c.r * linear;
+    out[3 * i + 1] = c.g * linear;
+    out[3 * i + 2] = c.b * linear;
   }
   return out;
 }
