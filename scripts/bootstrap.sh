@@ -38,8 +38,8 @@ packages=(
   libgpiod-dev gpiod libserialport-dev linux-libc-dev libtomlplusplus-dev
   # virtual rig CLI (slrig-render writes PNG frames)
   libpng-dev
-  # tests and benchmarks
-  googletest libgtest-dev libgmock-dev libbenchmark-dev
+  # tests and benchmarks (chromium: report.html is rendered headless, WebGL on SwiftShader)
+  googletest libgtest-dev libgmock-dev libbenchmark-dev chromium
   # cross builds
   g++-aarch64-linux-gnu g++-arm-linux-gnueabihf qemu-user-static file
 )
@@ -56,4 +56,22 @@ else
   $SUDO apt-get install -y -qq --no-install-recommends -t bookworm-backports libcamera-dev || \
     echo "bootstrap: libcamera-dev from bookworm-backports not available; the libcamera backend will be skipped"
   echo "$want" | $SUDO tee "$stamp" >/dev/null
+fi
+
+# report.html's 3D viewer is bundled at build time from npm packages (three, esbuild) pinned by
+# host/app/viewer/package-lock.json. Debian's nodejs and npm unless a Node.js with npm is there
+# already (a NodeSource nodejs carries its own npm and conflicts with Debian's).
+if ! command -v npm >/dev/null; then
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get install -y -qq --no-install-recommends nodejs npm || \
+    echo "bootstrap: nodejs/npm not installed; slscan will build without the report's 3D viewer"
+fi
+viewer="$(cd "$(dirname "$0")/.." && pwd)/host/app/viewer"
+if command -v npm >/dev/null; then
+  if [ -f "$viewer/node_modules/.package-lock.json" ] && [ "$viewer/node_modules/.package-lock.json" -nt "$viewer/package-lock.json" ]; then
+    echo "bootstrap: viewer npm packages present"
+  else
+    (cd "$viewer" && npm ci --no-audit --no-fund --loglevel=error) || \
+      echo "bootstrap: npm ci failed in $viewer; slscan will build without the report's 3D viewer"
+  fi
 fi

@@ -196,7 +196,8 @@ int run_demo(const DemoCommand& command, const Console& console) {
   if (rc != exit_ok) return rc;
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   console.info("demo finished in " + std::to_string(static_cast<int>(seconds)) + " s; results in " +
-               fs::absolute(out).string() + " (model.ply, mesh.ply, mesh.stl, report.json, pictures/)");
+               fs::absolute(out).string() +
+               " (open report.html in a browser; model.ply, mesh.ply, mesh.stl, report.json, pictures/)");
   return exit_ok;
 }
 

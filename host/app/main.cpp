@@ -55,6 +55,8 @@ int main(int argc, char** argv) {
   scan_cmd->add_option("--period-us", scan.pattern_period_us, "Pattern period")->capture_default_str();
   scan_cmd->add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
   scan_cmd->add_option("--token-file", scan.token_file, "File holding the scanner's shared token");
+  scan_cmd->add_flag("--measure-ballbar", scan.measure_ball_bar,
+                     "Fit the ball bar in the model and put its figures in the reports");
 
   MeasureCommand measure;
   auto* measure_cmd = app.add_subcommand("measure", "Fit an artefact in a model and print its figures");

@@ -8,7 +8,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "report_html.hpp"
 #include "slscan/io/ply.hpp"
+#include "viewer_bundle.hpp"
 
 namespace slscan::app {
 
@@ -281,7 +283,14 @@ OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& r
     outputs["mesh_ply"] = "mesh.ply";
     outputs["mesh_stl"] = "mesh.stl";
   }
+  outputs["report_html"] = "report.html";
   report["outputs"] = outputs;
+  std::vector<std::string> relative_pictures;
+  for (const auto& path : files.pictures) relative_pictures.push_back(fs::relative(path, dir).generic_string());
+  files.report_html = (fs::path(dir) / "report.html").string();
+  io::write_file_atomically(files.report_html,
+                            render_report_html(report, result.model, relative_pictures,
+                                               {report_viewer_js(), report_viewer_missing_reason()}));
   files.report_json = (fs::path(dir) / "report.json").string();
   io::write_file_atomically(files.report_json, report.dump(2) + "\n");
   return files;

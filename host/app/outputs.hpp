@@ -1,6 +1,7 @@
 // What a reconstruction leaves in its output folder: the fused model (PLY), the mesh (PLY and
 // STL), per-view clouds, report.json, and pictures (per-view depth, quality and fusion-source
-// maps, previews of the model). Every file is written to a temporary name and renamed.
+// maps, previews of the model) and report.html showing all of it. Every file is written to a temporary name and
+// renamed.
 #pragma once
 
 #include <nlohmann/json.hpp>
@@ -16,12 +17,12 @@ nlohmann::json scan_result_to_json(const core::ScanResult& result);
 nlohmann::json ball_bar_to_json(const core::BallBarResult& ball_bar);
 
 struct OutputFiles {
-  std::string model_ply, mesh_ply, mesh_stl, report_json;
+  std::string model_ply, mesh_ply, mesh_stl, report_json, report_html;
   std::vector<std::string> pictures;
 };
 
 // Writes everything into `dir` (created if needed). `report` is completed with the scan's
-// figures and written last, as report.json.
+// figures and written last, as report.json, just after report.html shows it.
 OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, nlohmann::json report);
 
 // A shaded splat rendering of a cloud with normals, seen from `azimuth_deg` around +z and
