@@ -4,7 +4,9 @@
 // `slscan reprocess` of the recorded capture gives the same bytes, that a capture cut mid-frame
 // reprocesses what it holds, and that report.html renders its 3D viewer in headless Chromium.
 //
-// Calibration: the virtual rig's ground truth for now (the calibration capture comes later).
+// Calibration: estimated, as on a real rig, by `slscan calibrate --virtual small` (the virtual
+// rig's calibration capture: checkerboard at 14 free poses and 6 table angles), which also
+// saves the capture folder; the scan then runs with that calibration.
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -141,8 +143,11 @@ class LiveScan : public ::testing::Test {
     auto scene = slrig::scene_preset("ballbar", slrig::RigSize::small);
     ASSERT_TRUE(scene.ok()) << scene.error().message;
     scene_ = new slrig::Scene(*scene);
-    ASSERT_TRUE(
-        slproto::save_calibration((dir_ / "calib.json").string(), slrig::ground_truth_calibration(*scene_)).ok());
+    calibrate_ = new Finished(
+        run({SLSCAN_BIN, "calibrate", "--virtual", "small", "--write-capture", (dir_ / "calibration-capture").string(),
+             "--out", (dir_ / "calib.json").string(), "--report", (dir_ / "calibration_report.json").string()},
+            dir_ / "calibrate", std::chrono::seconds(600)));
+    ASSERT_EQ(calibrate_->exit_code, 0) << "slscan calibrate failed:\n" << calibrate_->err;
 
     std::string board = read_bytes(fs::path(SLSCAN_SOURCE_DIR) / "boards" / "sim.toml");
     const auto at = board.find("scene = \"sphere\"");
@@ -177,6 +182,7 @@ class LiveScan : public ::testing::Test {
   static void TearDownTestSuite() {
     delete daemon_;
     delete scan_;
+    delete calibrate_;
     delete scene_;
     if (!keep_) fs::remove_all(dir_);
   }
@@ -196,6 +202,7 @@ class LiveScan : public ::testing::Test {
   static inline slrig::Scene* scene_ = nullptr;
   static inline Slscand* daemon_ = nullptr;
   static inline Finished* scan_ = nullptr;
+  static inline Finished* calibrate_ = nullptr;
   static inline double scan_seconds_ = 0;
   static inline bool keep_ = false;
 };
@@ -212,6 +219,26 @@ TEST_F(LiveScan, BallBarLengthWithinToleranceFromTheCommandLine) {
   EXPECT_DOUBLE_EQ(report("live")["measurement"]["ball_bar"]["centre_distance_mm"].get<double>(), distance);
 }
 
+// `slscan calibrate` left a calibration file that loads, a report of every pose, and the
+// capture folder it rendered, which calibrates again to the same file.
+TEST_F(LiveScan, CalibrationFromTheCommandLine) {
+  const auto calibration = slproto::load_calibration((dir_ / "calib.json").string());
+  ASSERT_TRUE(calibration.ok()) << calibration.error().message;
+  EXPECT_LT(calibration->camera_reprojection_rms_px, 0.1);
+  const json report = json::parse(read_bytes(dir_ / "calibration_report.json"));
+  EXPECT_EQ(report["camera_views"].get<int>(), 20);
+  EXPECT_EQ(report["turntable"].size(), 6u);
+  EXPECT_TRUE(report["skipped"].empty()) << report["skipped"].dump();
+  ASSERT_TRUE(fs::exists(dir_ / "calibration-capture" / "manifest.json"));
+  const Finished again = run({SLSCAN_BIN, "--quiet", "calibrate", (dir_ / "calibration-capture").string(), "--out",
+                              (dir_ / "calib-again.json").string()},
+                             dir_ / "calibrate-again", std::chrono::seconds(600));
+  ASSERT_EQ(again.exit_code, 0) << again.err;
+  auto reread = slproto::load_calibration((dir_ / "calib-again.json").string());
+  ASSERT_TRUE(reread.ok()) << reread.error().message;
+  EXPECT_EQ(*reread, *calibration);
+}
+
 TEST_F(LiveScan, ReportHoldsCountsResidualsAndTimings) {
   const json r = report("live");
   const slproto::PatternPlan plan(scene_->pattern_plan);
@@ -220,7 +247,7 @@ TEST_F(LiveScan, ReportHoldsCountsResidualsAndTimings) {
   EXPECT_TRUE(r["capture"]["complete"].get<bool>());
   EXPECT_EQ(r["board"]["name"], "sim");
   EXPECT_EQ(r["board_frames_dropped"].get<std::size_t>(), 0u);
-  EXPECT_EQ(r["calibration"]["source"], slrig::ground_truth_calibration(*scene_).source);
+  EXPECT_EQ(r["calibration"]["source"], "virtual rig, calibration preset (small)");
 
   const json& scan = r["scan"];
   ASSERT_EQ(scan["views"].size(), views);
@@ -257,8 +284,8 @@ TEST_F(LiveScan, ReportHoldsCountsResidualsAndTimings) {
   ASSERT_TRUE(reg["applied"].get<bool>()) << reg.dump();
   ASSERT_EQ(reg["views"].size(), views);
   for (const auto& v : reg["views"]) {
-    // Ground-truth calibration and exact turntable angles: ICP has little to correct (0.08 deg
-    // at most on this scan) and the residual is the small rig's surface noise (~10 um).
+    // Estimated calibration and exact turntable angles: ICP has little to correct and the
+    // residual is the small rig's surface noise (~10 um).
     EXPECT_GT(v["residual_rms_mm"].get<double>(), 0.0);
     EXPECT_LT(v["residual_rms_mm"].get<double>(), 0.05);
     EXPECT_LT(std::abs(v["correction_deg"].get<double>()), 0.3);
