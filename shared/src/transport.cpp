@@ -81,7 +81,13 @@ void tune_socket(int fd, const ConnectionOptions& options) {
     setsockopt(fd, SOL_SOCKET, SO_SNDBUFFORCE, &options.socket_buffer_bytes, sizeof options.socket_buffer_bytes);
     setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &options.socket_buffer_bytes, sizeof options.socket_buffer_bytes);
   }
-  const unsigned user_timeout = static_cast<unsigned>(std::max<long long>(options.peer_timeout.count(), 1));
+  // The kernel's backstop only: on Linux 6.1 a zero receive window (a live peer that is busy and
+  // reads nothing for a while) counts against TCP_USER_TIMEOUT too, so at peer_timeout it would
+  // cut a connection that is merely back-pressured. Our own checks tell the two apart (a stalled
+  // send asks whether the peer still sends, receive() watches its heartbeats) within
+  // peer_timeout; the kernel steps in only after a whole send timeout.
+  const unsigned user_timeout =
+      static_cast<unsigned>(std::max<long long>({options.peer_timeout.count(), default_send_timeout.count(), 1}));
   setsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &user_timeout, sizeof user_timeout);
 }
 
@@ -112,7 +118,9 @@ struct Connection::Impl {
 
   std::mutex receive_mutex;
   StreamDecoder decoder;
-  std::uint64_t last_receive_ns = 0;
+  // Written by the receiving thread, read by a sending one (a stalled send asks whether the peer
+  // is still alive).
+  std::atomic<std::uint64_t> last_receive_ns{0};
   CaptureWriter* capture = nullptr;
 
   std::mutex heartbeat_mutex;
@@ -217,19 +225,27 @@ struct Connection::Impl {
                                                          ": " + errno_text(error)),
                       sent);
       }
+      // A peer that reads nothing but still sends (its heartbeats arrive) is alive and busy:
+      // that is back-pressure, and the send waits for it up to `timeout`. Only a peer that
+      // neither reads nor sends for peer_timeout is gone.
       const auto stall_deadline = last_progress + options.peer_timeout;
       const auto now = Clock::now();
       if (now >= deadline)
         return broken(make_error(Errc::timeout, std::string("sending ") + message_type_name(type) + " to " + peer +
-                                                    ": not done after " + std::to_string(timeout.count()) + " ms"),
+                                                    ": not done after " + std::to_string(timeout.count()) +
+                                                    " ms (the peer is alive but reads too slowly)"),
                       sent);
-      if (now >= stall_deadline)
+      const std::uint64_t now_ns = monotonic_ns();
+      const std::uint64_t heard_ns = last_receive_ns.load();
+      const bool peer_silent = now_ns - std::min(now_ns, heard_ns) >=
+                               static_cast<std::uint64_t>(std::chrono::nanoseconds(options.peer_timeout).count());
+      if (now >= stall_deadline && peer_silent)
         return broken(make_error(Errc::disconnected, std::string("sending ") + message_type_name(type) + " to " + peer +
-                                                         ": the peer accepted no data for " +
+                                                         ": the peer accepted no data and sent none for " +
                                                          std::to_string(options.peer_timeout.count()) + " ms"),
                       sent);
       pollfd waiter{fd, POLLOUT, 0};
-      ::poll(&waiter, 1, std::min(remaining_ms(deadline), remaining_ms(stall_deadline)));
+      ::poll(&waiter, 1, std::min({remaining_ms(deadline), std::max(remaining_ms(stall_deadline), 1), 50}));
     }
     last_send_ns = monotonic_ns();
     ++messages_sent;
@@ -311,7 +327,7 @@ struct Connection::Impl {
         return make_error(Errc::disconnected, "receiving from " + peer + ": " + errno_text(error));
       }
       const std::uint64_t now = monotonic_ns();
-      const std::uint64_t silent_ns = now - std::min(now, last_receive_ns);
+      const std::uint64_t silent_ns = now - std::min(now, last_receive_ns.load());
       if (silent_ns >= peer_timeout_ns) {
         open = false;
         ::shutdown(fd, SHUT_RDWR);

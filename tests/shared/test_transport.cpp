@@ -214,6 +214,38 @@ TEST(Transport, PeerThatStopsReadingIsDetectedWithinOneSecondOfTheStall) {
   ::close(raw);
 }
 
+// The host's receiving thread may be held up by reconstruction for longer than peer_timeout;
+// its heartbeats still arrive, so the board's sends wait (back-pressure: the sequencer pauses
+// between patterns) instead of declaring the host gone.
+TEST(Transport, APeerThatIsAliveButNotReadingGetsBackPressureNotADisconnect) {
+  Pair pair = connected_pair();
+  std::atomic<bool> stop{false};
+  // The board listens to the host during a scan as slscand does (abort, heartbeats).
+  std::thread board_listener([&] {
+    while (!stop.load()) (void)pair.board.receive(20ms);
+  });
+  constexpr int frames = 12;
+  auto reader = std::async(std::launch::async, [&]() -> std::string {
+    std::this_thread::sleep_for(2500ms);  // three peer timeouts without reading a byte
+    for (int received = 0; received < frames;) {
+      Result<Message> message = pair.host.receive(10s);
+      if (!message) return "host, after " + std::to_string(received) + " frames: " + message.error().message;
+      if (message->get<pb::FrameHeader>() != nullptr) ++received;
+    }
+    return {};
+  });
+  const pb::FrameHeader header = samples::sample_frame_header(2464, 2056);
+  const std::vector<std::byte> payload(2464u * 2056u, std::byte{0x2a});
+  const auto start = Clock::now();
+  Status status;
+  for (int i = 0; i < frames && status.ok(); ++i) status = pair.board.send_frame(header, payload, 10s);
+  EXPECT_TRUE(status.ok()) << status.error().message;
+  EXPECT_GE(Clock::now() - start, 2s) << "the frames fit in the socket buffers: the test tests nothing";
+  EXPECT_EQ(reader.get(), "");
+  stop = true;
+  board_listener.join();
+}
+
 TEST(Transport, PeerClosingMidRecordIsReportedAtOnce) {
   Result<Server> server = Server::listen("127.0.0.1", 0);
   ASSERT_TRUE(server.ok());

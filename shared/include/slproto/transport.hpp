@@ -5,9 +5,10 @@
 // nothing else was sent for `heartbeat_interval`. receive() reports Errc::disconnected when
 // no byte at all arrived for `peer_timeout` (the peer vanished without closing: power loss,
 // cable pulled, process frozen); a send that makes no progress for `peer_timeout` reports
-// Errc::disconnected too (peer not reading). A peer that closes or crashes is seen at once.
-// TCP_USER_TIMEOUT = peer_timeout makes the kernel drop a connection whose data stays
-// unacknowledged that long.
+// Errc::disconnected too (peer neither reading nor sending) -- a peer that reads nothing but
+// whose heartbeats still arrive is busy, not gone, and the send waits for it up to its timeout
+// (back-pressure). A peer that closes or crashes is seen at once. TCP_USER_TIMEOUT (the larger
+// of peer_timeout and default_send_timeout) is the kernel's backstop.
 //
 // Threads: one thread may send while another receives; sends are serialised internally;
 // receive() must not be called from two threads at once. close() may be called from any
