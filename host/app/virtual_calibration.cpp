@@ -62,8 +62,10 @@ VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene&
       }
       continue;
     }
+    spec.scene.pattern_plan = plans[0].config();
     const slrig::ViewRenderer renderer(spec.scene, spec.commanded_angle_deg, spec.view_index);
-    out.actual_table_deg.push_back(renderer.ground_truth().actual_angle_deg);
+    const double actual_deg = renderer.ground_truth().actual_angle_deg;
+    out.actual_table_deg.push_back(actual_deg);
     out.cam_from_board.push_back(renderer.ground_truth().cam_from_table * spec.table_from_board);
     // The camera image: both projectors' white (flood light).
     const std::size_t white = static_cast<std::size_t>(plans[0].index_of(slproto::PatternKind::white));
@@ -72,6 +74,21 @@ VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene&
                     render_frame(renderer, ProjectorSide::right, plans[0], white, depth), 0.5, 0.0, both);
     capture.frames.push_back(
         {pose, core::CalibrationFrame::Kind::camera, ProjectorSide::left, slproto::CodingAxis::columns, 0, both});
+    // Both projectors' plans along both axes too, so the projectors pin each table pose's depth.
+    // The table does not move between the axes: the rows' renderer is told the angle the table
+    // actually reached (no new angle error) and gets its own noise seed (separate exposures).
+    slrig::Scene rows_scene = spec.scene;
+    rows_scene.pattern_plan = plans[1].config();
+    rows_scene.turntable.angle_error_sigma_deg = 0;
+    rows_scene.sensor.seed += 7919;
+    const slrig::ViewRenderer rows_renderer(rows_scene, actual_deg, spec.view_index);
+    for (std::size_t a = 0; a < 2; ++a) {
+      const slrig::ViewRenderer& r = a == 0 ? renderer : rows_renderer;
+      for (ProjectorSide side : {ProjectorSide::left, ProjectorSide::right})
+        for (std::size_t i = 0; i < plans[a].size(); ++i)
+          capture.frames.push_back({pose, core::CalibrationFrame::Kind::pattern, side, plans[a].config().axis, i,
+                                    render_frame(r, side, plans[a], i, depth)});
+    }
   }
   scene.objects.clear();
   out.truth = slrig::ground_truth_calibration(scene);

@@ -182,7 +182,10 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
     camera_views.push_back(detection.view);
     camera_pose.push_back(p);
     if (pose.on_turntable) {
-      table_views.push_back({detection.view, pose.table_angle_deg});
+      TurntableView table_view;
+      table_view.camera = detection.view;
+      table_view.commanded_angle_deg = pose.table_angle_deg;
+      table_views.push_back(std::move(table_view));
       table_pose.push_back(p);
     }
     for (std::size_t s = 0; s < 2; ++s) {
@@ -214,6 +217,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
       proj_cam_views[s].push_back(detection.view);
       proj_views[s].push_back(corners.view);
       proj_pose[s].push_back(p);
+      if (pose.on_turntable) table_views.back().projectors[s] = corners.view;
     }
   }
 
@@ -288,8 +292,16 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
       throw std::runtime_error("calibration: the board was found in " + std::to_string(table_views.size()) +
                                " turntable poses, at least " + std::to_string(options.min_turntable_views) +
                                " are needed (6 recommended)" + skipped_text());
+    // Projectors that saw the table poses pin their depth (the camera alone: PnP).
+    std::array<TurntableProjector, 2> table_projectors;
+    for (std::size_t s = 0; s < 2; ++s) {
+      table_projectors[s].use = !proj_views[s].empty();
+      table_projectors[s].calibration = cal.projectors[s];
+      table_projectors[s].weight =
+          cal.camera_reprojection_rms_px / std::max(cal.projectors[s].reprojection_rms_px, 0.005);
+    }
     const TurntableSolve table =
-        calibrate_turntable(capture.target, cal.camera, table_views, capture.platform_radius_mm);
+        calibrate_turntable(capture.target, cal.camera, table_views, capture.platform_radius_mm, table_projectors);
     cal.turntable = table.calibration;
     report.turntable_rms_px = table.rms_px;
     report.target_tilt_deg = table.target_tilt_deg;

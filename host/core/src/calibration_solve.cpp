@@ -681,7 +681,8 @@ Eigen::Matrix3d rodrigues(const Eigen::Vector3d& n, double angle) {
 }  // namespace
 
 TurntableSolve calibrate_turntable(const CheckerboardTarget& target, const PinholeModel& camera,
-                                   const std::vector<TurntableView>& views_in, double platform_radius_mm) {
+                                   const std::vector<TurntableView>& views_in, double platform_radius_mm,
+                                   const std::array<TurntableProjector, 2>& projectors) {
   target.check();
   if (views_in.size() < 3)
     throw std::invalid_argument("turntable calibration: " + std::to_string(views_in.size()) +
@@ -689,6 +690,7 @@ TurntableSolve calibrate_turntable(const CheckerboardTarget& target, const Pinho
   if (!(platform_radius_mm > 0)) throw std::invalid_argument("turntable calibration: platform radius must be positive");
   const std::size_t n = views_in.size();
   std::vector<TargetView> views(n);
+  std::vector<std::array<TargetView, 2>> projector_views(n);
   std::vector<RigidTransform> poses(n);
   TurntableSolve out;
   out.flipped.assign(n, false);
@@ -696,6 +698,11 @@ TurntableSolve calibrate_turntable(const CheckerboardTarget& target, const Pinho
     check_view(target, views_in[i].camera, "turntable view", 6);
     views[i] = views_in[i].camera;
     poses[i] = solve_target_pose(target, camera, views[i]);
+    for (std::size_t s = 0; s < 2; ++s)
+      if (projectors[s].use && !views_in[i].projectors[s].corners.empty()) {
+        check_view(target, views_in[i].projectors[s], "turntable view (projector corners)", 1);
+        projector_views[i][s] = views_in[i].projectors[s];
+      }
   }
   // The grid of inner corners is point-symmetric, and a detector may list it from either end
   // (always possible on a board with odd x odd squares, and after large turns on others). The
@@ -712,6 +719,7 @@ TurntableSolve calibrate_turntable(const CheckerboardTarget& target, const Pinho
       if (as_flipped < as_is) {
         poses[i] = flipped_pose;
         views[i] = reversed(target, views[i]);
+        for (TargetView& v : projector_views[i]) v = reversed(target, v);
         out.flipped[i] = true;
       }
     }
@@ -767,6 +775,14 @@ TurntableSolve calibrate_turntable(const CheckerboardTarget& target, const Pinho
   x.segment<3>(pose_base + 3) = p0.t;
   Eigen::Index residual_count = 0;
   for (const TargetView& v : views) residual_count += 2 * static_cast<Eigen::Index>(v.corners.size());
+  std::array<Eigen::Matrix3d, 2> proj_r;
+  std::array<Eigen::Vector3d, 2> proj_t;
+  for (std::size_t s = 0; s < 2; ++s) {
+    const RigidTransform proj_from_cam = projectors[s].calibration.cam_from_proj.inverse();
+    proj_r[s] = to_eigen(proj_from_cam.R);
+    proj_t[s] = {proj_from_cam.t[0], proj_from_cam.t[1], proj_from_cam.t[2]};
+    for (const auto& pv : projector_views) residual_count += 2 * static_cast<Eigen::Index>(pv[s].corners.size());
+  }
   auto view_pose = [&](const Eigen::VectorXd& params, std::size_t i) {
     const Pose base = pose_at(params, pose_base);
     if (i == 0) return std::pair<Eigen::Matrix3d, Eigen::Vector3d>(base.R(), base.t);
@@ -783,6 +799,14 @@ TurntableSolve calibrate_turntable(const CheckerboardTarget& target, const Pinho
         res.segment<2>(k) = project(camera, r * target.corner(c.id) + t) - c.pixel;
         k += 2;
       }
+      for (std::size_t s = 0; s < 2; ++s)
+        for (const CornerObservation& c : projector_views[i][s].corners) {
+          const Eigen::Vector3d in_camera = r * target.corner(c.id) + t;
+          res.segment<2>(k) =
+              projectors[s].weight *
+              (project(projectors[s].calibration.intrinsics, proj_r[s] * in_camera + proj_t[s]) - c.pixel);
+          k += 2;
+        }
     }
     return res;
   };

@@ -77,6 +77,17 @@ RigBundle refine_rig_jointly(const CheckerboardTarget& target, const DeviceCalib
 struct TurntableView {
   TargetView camera;               // corners in the camera image
   double commanded_angle_deg = 0;  // what the table was told
+  // The corners' projector coordinates, when the projectors showed their patterns at this pose
+  // (empty: camera only). Same corner ids as `camera`.
+  std::array<TargetView, 2> projectors;
+};
+
+// A calibrated projector the turntable fit may use: its corners pin each table pose's depth by
+// triangulation, where the camera alone has only perspective (PnP) for it.
+struct TurntableProjector {
+  bool use = false;
+  slproto::ProjectorCalibration calibration;
+  double weight = 1;  // of its residuals against the camera's (camera RMS / projector RMS)
 };
 
 struct TurntableSolve {
@@ -95,8 +106,10 @@ struct TurntableSolve {
 // platform plane is perpendicular to the axis, `target.thickness_mm` below the target's
 // surface; the table frame's origin is where the axis meets it (Formula 7), z points up
 // (towards the camera's side of the platform), x is the camera's x projected onto the plane.
+// Projectors with `use` add their corners' reprojection errors (weighted) to the same fit.
 TurntableSolve calibrate_turntable(const CheckerboardTarget& target, const slproto::PinholeModel& camera,
-                                   const std::vector<TurntableView>& views, double platform_radius_mm);
+                                   const std::vector<TurntableView>& views, double platform_radius_mm,
+                                   const std::array<TurntableProjector, 2>& projectors = {});
 
 // Pose of the target from one view with a known model (iterative PnP).
 slproto::RigidTransform solve_target_pose(const CheckerboardTarget& target, const slproto::PinholeModel& model,
