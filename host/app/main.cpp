@@ -6,18 +6,11 @@
 #include "real_data.hpp"
 #include "run.hpp"
 #include "slscan/io/ply.hpp"
+#include "status.hpp"
 
 namespace {
 
 using namespace slscan::app;
-
-std::pair<std::string, std::uint16_t> split_host_port(const std::string& text) {
-  const auto colon = text.rfind(':');
-  if (colon == std::string::npos) return {text, 5025};
-  const int port = std::stoi(text.substr(colon + 1));
-  if (port <= 0 || port > 65535) throw std::invalid_argument("port out of range in '" + text + "'");
-  return {text.substr(0, colon), static_cast<std::uint16_t>(port)};
-}
 
 }  // namespace
 
@@ -57,6 +50,13 @@ int main(int argc, char** argv) {
   scan_cmd->add_option("--token-file", scan.token_file, "File holding the scanner's shared token");
   scan_cmd->add_flag("--measure-ballbar", scan.measure_ball_bar,
                      "Fit the ball bar in the model and put its figures in the reports");
+
+  StatusCommand status;
+  auto* status_cmd =
+      app.add_subcommand("status", "Show a scanner's board, firmware and protocol versions and its last scan");
+  status_cmd->add_option("scanner", status.address, "HOST[:PORT] (port 5025 unless given)")->required();
+  status_cmd->add_option("--token-file", status.token_file, "File holding the scanner's shared token");
+  status_cmd->add_flag("--json", status.json, "Print the status as JSON");
 
   MeasureCommand measure;
   auto* measure_cmd = app.add_subcommand("measure", "Fit an artefact in a model and print its figures");
@@ -145,9 +145,10 @@ int main(int argc, char** argv) {
   try {
     if (*reprocess_cmd) return run_reprocess(reprocess, console);
     if (*scan_cmd) {
-      std::tie(scan.host, scan.port) = split_host_port(connect);
+      std::tie(scan.host, scan.port) = parse_scanner_address(connect);
       return run_scan(scan, console);
     }
+    if (*status_cmd) return run_status(status, console);
     if (*import_cmd) return run_import(import, console);
     if (*calibrate_cmd) return run_calibrate(calibrate, console);
     if (*compare_cmd) return run_compare(compare, console);

@@ -20,6 +20,7 @@
 #include "slscan/core/measure.hpp"
 #include "slscan/io/capture_replay.hpp"
 #include "slscan/io/ply.hpp"
+#include "status.hpp"
 
 #ifndef SLSCAN_VERSION
 #define SLSCAN_VERSION "unknown"
@@ -207,18 +208,14 @@ int run_scan(const ScanCommand& command, const Console& console) {
   const auto start = Clock::now();
   const slproto::RigCalibration calibration = load_calibration_or_throw(command.calibration_path);
   const core::ReconstructionOptions options = options_from(command.config_path);
-  std::string token;
-  if (!command.token_file.empty()) {
-    std::ifstream in(command.token_file);
-    if (!in) throw io::IoError(command.token_file + ": cannot read the token file");
-    std::getline(in, token);
-  }
+  const std::string token = command.token_file.empty() ? std::string() : read_token_file(command.token_file);
 
   auto connection = slproto::connect(command.host, command.port, std::chrono::seconds(3));
   if (!connection)
     throw DeviceError("cannot connect to " + command.host + ":" + std::to_string(command.port) + ": " +
                       connection.error().message);
-  auto reply = slproto::client_handshake(*connection, slproto::make_hello("slscan", SLSCAN_VERSION, 0, token));
+  auto reply =
+      slproto::client_handshake(*connection, slproto::make_hello("slscan", "slscan " SLSCAN_VERSION, 0, token));
   if (!reply) throw DeviceError("the scanner refused the connection: " + reply.error().message);
   console.info("connected to " + reply->board_name() + " (" + reply->software_version() + ", protocol " +
                std::to_string(reply->protocol_version()) + ")");

@@ -56,11 +56,11 @@ Result<CaptureHeaderInfo> parse_capture_header(std::span<const std::byte> bytes,
                                                std::to_string(capture_format_version) + ") at offset 8");
   CaptureHeaderInfo info;
   info.protocol_version = static_cast<std::uint16_t>(get_le(p + 10, 2));
-  if (info.protocol_version < min_protocol_version || info.protocol_version > protocol_version)
-    return make_error(Errc::wrong_version, name + ": records use protocol version " +
-                                               std::to_string(info.protocol_version) + ", this build speaks " +
-                                               std::to_string(min_protocol_version) + ".." +
-                                               std::to_string(protocol_version) + " (offset 10)");
+  if (info.protocol_version < min_framing_version || info.protocol_version > framing_version)
+    return make_error(Errc::wrong_version, name + ": records use framing version " +
+                                               std::to_string(info.protocol_version) + ", this build reads " +
+                                               std::to_string(min_framing_version) + ".." +
+                                               std::to_string(framing_version) + " (offset 10)");
   info.header_length = static_cast<std::uint32_t>(get_le(p + 12, 4));
   if (info.header_length < capture_header_size || info.header_length > max_capture_header)
     return make_error(Errc::malformed, name + ": capture header length " + std::to_string(info.header_length) +
@@ -75,7 +75,7 @@ std::array<std::byte, capture_header_size> capture_file_header(std::uint64_t uni
   std::array<std::byte, capture_header_size> out{};
   std::copy(capture_magic.begin(), capture_magic.end(), out.begin());
   put_le(&out[8], capture_format_version, 2);
-  put_le(&out[10], protocol_version, 2);
+  put_le(&out[10], framing_version, 2);
   put_le(&out[12], capture_header_size, 4);
   put_le(&out[16], unix_ns, 8);
   put_le(&out[24], 0, 4);

@@ -60,6 +60,12 @@ Result<Body> parse_body(MessageType type, std::span<const std::byte> control) {
     case MessageType::heartbeat:
       body.emplace<pb::Heartbeat>();
       break;
+    case MessageType::status_request:
+      body.emplace<pb::StatusRequest>();
+      break;
+    case MessageType::status_reply:
+      body.emplace<pb::StatusReply>();
+      break;
   }
   const bool parsed = std::visit(
       [&](auto& message) { return message.ParseFromArray(control.data(), static_cast<int>(control.size())); }, body);
@@ -101,11 +107,11 @@ Result<WireHeader> WireHeader::parse(std::span<const std::byte, wire_header_size
     return make_error(Errc::bad_checksum, "record header: header CRC mismatch" + at(stream_offset));
   WireHeader header;
   header.version = get_u16(p + 4);
-  if (header.version < min_protocol_version || header.version > protocol_version)
-    return make_error(Errc::wrong_version, "record header: protocol version " + std::to_string(header.version) +
-                                               " not supported (this build speaks " +
-                                               std::to_string(min_protocol_version) + ".." +
-                                               std::to_string(protocol_version) + ")" + at(stream_offset + 4));
+  if (header.version < min_framing_version || header.version > framing_version)
+    return make_error(Errc::wrong_version, "record header: framing version " + std::to_string(header.version) +
+                                               " not supported (this build reads " +
+                                               std::to_string(min_framing_version) + ".." +
+                                               std::to_string(framing_version) + ")" + at(stream_offset + 4));
   const auto type = std::to_integer<std::uint8_t>(p[6]);
   if (!is_known_message_type(type))
     return make_error(Errc::malformed,

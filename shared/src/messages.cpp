@@ -25,6 +25,10 @@ const char* message_type_name(MessageType type) noexcept {
       return "abort";
     case MessageType::heartbeat:
       return "heartbeat";
+    case MessageType::status_request:
+      return "status_request";
+    case MessageType::status_reply:
+      return "status_reply";
   }
   return "unknown";
 }

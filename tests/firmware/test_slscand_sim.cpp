@@ -1,6 +1,7 @@
 // slscand on the sim board, driven by a host over loopback: a full 6-view scan arrives in
 // order with its timing log; abort, disconnect and each device fault end the scan cleanly
 // (projectors dark, an error naming the cause) and leave the daemon ready for the next scan.
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -11,6 +12,7 @@
 #include <thread>
 
 #include "slproto/handshake.hpp"
+#include "slproto/status.hpp"
 #include "slproto/transport.hpp"
 #include "slscand/app/daemon.hpp"
 #include "slscand/hal/sim/sim_rig.hpp"
@@ -477,4 +479,70 @@ TEST_F(DaemonFixture, TurntableTimeoutsEndTheScan) {
   expect_dark_and_idle();
   daemon_->devices().sim_rig->turntable().set_faults({});
   expect_next_scan_runs(c, 63);
+}
+
+namespace {
+slproto::Result<pb::StatusReply> ask_status(std::uint16_t port) {
+  auto connection = slproto::connect("127.0.0.1", port, 5s);
+  if (!connection) return std::move(connection).error();
+  auto reply = slproto::client_handshake(*connection, slproto::make_hello("status", "0"));
+  if (!reply) return std::move(reply).error();
+  return slproto::request_status(*connection, *reply, 5s);
+}
+}  // namespace
+
+TEST_F(DaemonFixture, StatusNamesTheBoardItsVersionsAndItsLastScan) {
+  start();
+  auto before = ask_status(daemon_->port());
+  ASSERT_TRUE(before.ok()) << before.error().message;
+  EXPECT_EQ(before->board_name(), "sim");
+  EXPECT_EQ(before->software_version(), software_version());
+  EXPECT_EQ(before->protocol_version(), slproto::protocol_version);
+  EXPECT_EQ(before->min_protocol_version(), slproto::min_protocol_version);
+  EXPECT_EQ(before->max_protocol_version(), slproto::protocol_version);
+  EXPECT_TRUE(before->capabilities() & pb::CAPABILITY_SIMULATED);
+  EXPECT_FALSE(before->has_last_scan());
+  EXPECT_FALSE(before->scanning());
+
+  slproto::Connection c = connect();
+  ASSERT_TRUE(c.send(request(71, 1)).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  ASSERT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
+
+  // The scanning host stays connected: a second host gets a status-only connection.
+  auto after = ask_status(daemon_->port());
+  ASSERT_TRUE(after.ok()) << after.error().message;
+  ASSERT_TRUE(after->has_last_scan());
+  const pb::LastScan& last = after->last_scan();
+  EXPECT_EQ(last.scan_id(), 71u);
+  EXPECT_EQ(last.final_state(), pb::SCAN_STATE_DONE);
+  EXPECT_EQ(last.views_completed(), 1u);
+  EXPECT_EQ(last.views_requested(), 1u);
+  EXPECT_EQ(last.frames_sent(), 38u);
+  EXPECT_EQ(last.frames_total(), 38u);
+  EXPECT_EQ(last.text(), "scan complete");
+  EXPECT_THAT(last.host(), ::testing::StartsWith("127.0.0.1:"));
+  const auto now_ns =
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+  EXPECT_NEAR(static_cast<double>(last.finished_unix_ns()), static_cast<double>(now_ns), 120e9);
+  EXPECT_EQ(after->scans_done(), 1u);
+  EXPECT_GE(after->connections(), 3u);
+
+  // ...whose scan request is refused naming the host that has the scanner.
+  auto second = slproto::connect("127.0.0.1", daemon_->port(), 5s);
+  ASSERT_TRUE(second.ok());
+  ASSERT_TRUE(slproto::client_handshake(*second, slproto::make_hello("second", "0")).ok());
+  ASSERT_TRUE(second->send(request(72, 1)).ok());
+  auto refused = second->receive_as<pb::ScanDone>(10s);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code, slproto::Errc::busy);
+  EXPECT_THAT(refused.error().message, ::testing::HasSubstr("another host (127.0.0.1:"));
+
+  // The first host can ask too, on its own connection.
+  pb::HelloReply negotiated;
+  negotiated.set_protocol_version(slproto::protocol_version);
+  auto own = slproto::request_status(c, negotiated, 5s);
+  ASSERT_TRUE(own.ok()) << own.error().message;
+  EXPECT_EQ(own->last_scan().scan_id(), 71u);
 }

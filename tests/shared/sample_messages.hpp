@@ -152,6 +152,39 @@ inline pb::Heartbeat sample_heartbeat() {
   return m;
 }
 
+inline pb::StatusRequest sample_status_request() { return {}; }
+
+inline pb::StatusReply sample_status_reply() {
+  pb::StatusReply m;
+  m.set_board_name("bench-rig");
+  m.set_software_version("slscand 0.2.0");
+  m.set_protocol_version(2);
+  m.set_min_protocol_version(1);
+  m.set_max_protocol_version(2);
+  m.set_capabilities(pb::CAPABILITY_TURNTABLE);
+  m.set_backends("gpio-v1, v4l2, serial");
+  m.set_uptime_ns(3600000000000);
+  m.set_scanning(true);
+  m.set_connections(7);
+  m.set_scans_done(5);
+  m.set_scans_aborted(1);
+  m.set_scans_failed(2);
+  m.set_scans_refused(3);
+  pb::LastScan* last = m.mutable_last_scan();
+  last->set_scan_id(42);
+  last->set_final_state(pb::SCAN_STATE_DONE);
+  last->set_finished_unix_ns(1790000000000000000);
+  last->set_views_completed(6);
+  last->set_views_requested(6);
+  last->set_frames_sent(468);
+  last->set_frames_total(468);
+  last->set_duration_ns(21000000000);
+  last->set_text("scan complete");
+  last->set_host("192.168.1.20:40112");
+  m.set_last_error("turntable did not answer");
+  return m;
+}
+
 struct SampleRecord {
   Body body;
   std::vector<std::byte> payload;
@@ -169,6 +202,8 @@ inline std::vector<SampleRecord> sample_records() {
   records.push_back({sample_error(), {}});
   records.push_back({sample_abort(), {}});
   records.push_back({sample_heartbeat(), {}});
+  records.push_back({sample_status_request(), {}});
+  records.push_back({sample_status_reply(), {}});
   return records;
 }
 

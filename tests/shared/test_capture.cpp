@@ -68,7 +68,7 @@ TEST_F(Capture, RoundTripEveryMessageType) {
   EXPECT_FALSE(fs::exists(file + ".partial"));
   Result<CaptureReader> reader = CaptureReader::open(file);
   ASSERT_TRUE(reader.ok()) << reader.error().message;
-  EXPECT_EQ(reader->protocol_version(), protocol_version);
+  EXPECT_EQ(reader->protocol_version(), framing_version);
   EXPECT_GT(reader->created_unix_ns(), 1'600'000'000'000'000'000ull);
   const auto samples = samples::sample_records();
   for (std::size_t i = 0; i < offsets.size(); ++i) {
@@ -221,7 +221,7 @@ TEST_F(Capture, FileHeaderChecks) {
   reject(with_crc(format), Errc::wrong_version, "capture format version 2");
   auto protocol = good;
   protocol[10] = std::byte{9};
-  reject(with_crc(protocol), Errc::wrong_version, "protocol version 9");
+  reject(with_crc(protocol), Errc::wrong_version, "framing version 9");
   reject({good.begin(), good.begin() + 10}, Errc::truncated, "have 10 of 32 bytes");
 
   Result<CaptureReader> missing = CaptureReader::open(path("does-not-exist.slcap"));

@@ -193,7 +193,7 @@ TEST(Framing, VersionMismatchIsRejected) {
     patch_header(record, 4, version, 2);
     const Error error = decode_error(record);
     EXPECT_EQ(error.code, Errc::wrong_version);
-    EXPECT_THAT(error.message, HasSubstr("protocol version " + std::to_string(version)));
+    EXPECT_THAT(error.message, HasSubstr("framing version " + std::to_string(version)));
     EXPECT_THAT(error.message, HasSubstr("offset 4"));
   }
 }

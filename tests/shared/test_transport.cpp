@@ -61,7 +61,7 @@ TEST(Transport, HandshakeAndEveryMessageTypeBothWays) {
   ConnectionOptions options;
   options.deliver_heartbeats = true;  // so the sample heartbeat arrives like any other record
   Pair pair = connected_pair(options);
-  ServerIdentity identity{"bench-rig", "slscand 0.1.0", pb::CAPABILITY_TURNTABLE, {}, 2, "s3cret"};
+  ServerIdentity identity{"bench-rig", "slscand 0.1.0", pb::CAPABILITY_TURNTABLE, {}, 2, "s3cret", {}};
   identity.camera.set_width(2464);
   auto server_side = std::async(std::launch::async, [&] { return server_handshake(pair.board, identity); });
   Result<pb::HelloReply> reply =
@@ -102,7 +102,7 @@ TEST(Transport, HandshakeAndEveryMessageTypeBothWays) {
 TEST(Transport, HandshakeRejectsWrongTokenAndVersion) {
   {
     Pair pair = connected_pair();
-    ServerIdentity identity{"rig", "1", 0, {}, 2, "right"};
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "right", {}};
     auto server_side = std::async(std::launch::async, [&] { return server_handshake(pair.board, identity); });
     Result<pb::HelloReply> reply = client_handshake(pair.host, make_hello("h", "1", 0, "wrong"));
     ASSERT_FALSE(reply.ok());
@@ -115,7 +115,7 @@ TEST(Transport, HandshakeRejectsWrongTokenAndVersion) {
   }
   {
     Pair pair = connected_pair();
-    ServerIdentity identity{"rig", "1", 0, {}, 2, ""};
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "", {}};
     auto server_side = std::async(std::launch::async, [&] { return server_handshake(pair.board, identity); });
     pb::Hello future = make_hello("h", "9");
     future.set_protocol_version(7);
@@ -128,7 +128,7 @@ TEST(Transport, HandshakeRejectsWrongTokenAndVersion) {
   }
   {
     Pair pair = connected_pair();
-    ServerIdentity identity{"rig-a", "1", 0, {}, 2, ""};
+    ServerIdentity identity{"rig-a", "1", 0, {}, 2, "", {}};
     auto server_side = std::async(std::launch::async, [&] { return server_handshake(pair.board, identity); });
     Result<pb::HelloReply> reply = client_handshake(pair.host, make_hello("h", "1", 0, "", "rig-b"));
     ASSERT_FALSE(reply.ok());

@@ -14,8 +14,18 @@ using slproto::make_error;
 namespace pb = slproto::pb;
 using namespace std::chrono_literals;
 
+#ifndef SLSCAN_VERSION
+#error "SLSCAN_VERSION must be defined by the build (the project version)"
+#endif
+
+const char* software_version() { return "slscand " SLSCAN_VERSION; }
+
 namespace {
-constexpr const char* kSoftwareVersion = "slscand 0.1.0";
+// A host that connects just after the previous one left may arrive before the daemon saw the
+// previous one go (its receive loop polls): wait this long before treating it as a second host.
+constexpr auto kPrimaryGrace = 2s;
+// A status-only connection is for a quick question; it is closed after this long.
+constexpr auto kStatusOnlyLifetime = 10s;
 
 const char* state_name(pb::ScanState state) {
   switch (state) {
@@ -77,6 +87,7 @@ DaemonStats Daemon::stats() const {
 }
 
 void Daemon::serve() {
+  std::thread primary;
   while (!stop_) {
     auto connection = server_.accept(100ms);
     if (!connection) continue;  // timeout, or a client that vanished during accept
@@ -84,26 +95,110 @@ void Daemon::serve() {
       std::lock_guard lock(stats_mutex_);
       stats_.connections++;
     }
-    handle_connection(*connection);
-    connection->close();
+    for (auto waited = 0ms; primary_active_ && waited < kPrimaryGrace && !stop_; waited += 10ms)
+      std::this_thread::sleep_for(10ms);
+    if (primary_active_) {
+      // Served on the accept thread: the primary host's scan runs on its own thread meanwhile.
+      handle_status_only(*connection);
+      connection->close();
+      continue;
+    }
+    if (primary.joinable()) primary.join();
+    {
+      std::lock_guard lock(primary_mutex_);
+      primary_peer_ = connection->peer_address();
+    }
+    primary_active_ = true;
+    primary = std::thread([this, c = std::move(*connection)]() mutable {
+      handle_connection(c);
+      c.close();
+      primary_active_ = false;
+    });
   }
+  if (primary.joinable()) primary.join();
 }
 
-void Daemon::handle_connection(slproto::Connection& connection) {
+std::uint64_t Daemon::capabilities() const {
+  return pb::CAPABILITY_TURNTABLE | pb::CAPABILITY_TWO_PROJECTORS | pb::CAPABILITY_TIMING_LOG |
+         (board_.trigger_source == hal::CameraTriggerSource::projector ? pb::CAPABILITY_HARDWARE_TRIGGER : 0) |
+         (board_.is_sim() ? pb::CAPABILITY_SIMULATED : 0);
+}
+
+std::uint32_t Daemon::handshake(slproto::Connection& connection) {
   slproto::ServerIdentity identity;
   identity.board_name = board_.name;
-  identity.software_version = kSoftwareVersion;
-  identity.capabilities =
-      pb::CAPABILITY_TURNTABLE | pb::CAPABILITY_TWO_PROJECTORS | pb::CAPABILITY_TIMING_LOG |
-      (board_.trigger_source == hal::CameraTriggerSource::projector ? pb::CAPABILITY_HARDWARE_TRIGGER : 0) |
-      (board_.is_sim() ? pb::CAPABILITY_SIMULATED : 0);
+  identity.software_version = software_version();
+  identity.capabilities = capabilities();
   identity.camera.set_width(static_cast<std::uint32_t>(devices_.camera_format.width));
   identity.camera.set_height(static_cast<std::uint32_t>(devices_.camera_format.height));
   identity.camera.add_pixel_formats(to_proto(devices_.camera_format.pixel_format));
   identity.camera.set_model(devices_.camera->describe());
   identity.projector_count = 2;
   identity.auth_token = options_.auth_token;
-  if (!slproto::server_handshake(connection, identity)) return;
+  auto hello = slproto::server_handshake(connection, identity);
+  if (!hello) return 0;
+  return std::min<std::uint32_t>(hello->protocol_version(), identity.versions.max);
+}
+
+pb::StatusReply Daemon::status_reply(std::uint32_t negotiated) const {
+  pb::StatusReply reply;
+  reply.set_board_name(board_.name);
+  reply.set_software_version(software_version());
+  reply.set_protocol_version(negotiated);
+  reply.set_min_protocol_version(slproto::min_protocol_version);
+  reply.set_max_protocol_version(slproto::protocol_version);
+  reply.set_capabilities(capabilities());
+  reply.set_backends(hal::available_backends());
+  reply.set_uptime_ns(static_cast<std::uint64_t>(
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - started_).count()));
+  reply.set_scanning(scanning_);
+  std::lock_guard lock(stats_mutex_);
+  reply.set_connections(stats_.connections);
+  reply.set_scans_done(stats_.scans_done);
+  reply.set_scans_aborted(stats_.scans_aborted);
+  reply.set_scans_failed(stats_.scans_failed);
+  reply.set_scans_refused(stats_.scans_refused);
+  reply.set_last_error(stats_.last_error);
+  if (stats_.has_last_scan) *reply.mutable_last_scan() = stats_.last_scan;
+  return reply;
+}
+
+void Daemon::handle_status_only(slproto::Connection& connection) {
+  const std::uint32_t negotiated = handshake(connection);
+  if (negotiated == 0) return;
+  const auto deadline = std::chrono::steady_clock::now() + kStatusOnlyLifetime;
+  while (!stop_ && std::chrono::steady_clock::now() < deadline) {
+    auto message = connection.receive(100ms);
+    if (!message) {
+      if (message.error().code == Errc::timeout) continue;
+      return;
+    }
+    if (message->get<pb::StatusRequest>() != nullptr) {
+      if (!connection.send(status_reply(negotiated))) return;
+    } else if (const auto* request = message->get<pb::ScanRequest>()) {
+      std::string peer;
+      {
+        std::lock_guard lock(primary_mutex_);
+        peer = primary_peer_;
+      }
+      (void)connection.send(slproto::to_proto(
+          make_error(Errc::busy, "another host (" + peer + ") is using the scanner; slscand serves one host at a time"),
+          request->scan_id(), /*fatal=*/true));
+      return;
+    } else if (message->get<pb::Error>() == nullptr) {
+      (void)connection.send(slproto::to_proto(
+          make_error(Errc::busy, std::string("another host is using the scanner: only status_request is "
+                                             "answered on this connection, not ") +
+                                     slproto::message_type_name(message->type())),
+          0));
+    }
+  }
+}
+
+void Daemon::handle_connection(slproto::Connection& connection) {
+  const std::uint32_t negotiated = handshake(connection);
+  if (negotiated == 0) return;
+  negotiated_ = negotiated;
 
   while (!stop_) {
     auto message = connection.receive(100ms);
@@ -114,6 +209,8 @@ void Daemon::handle_connection(slproto::Connection& connection) {
     if (const auto* request = message->get<pb::ScanRequest>()) {
       const pb::ScanRequest copy = *request;  // the message buffer is reused by the next receive
       if (!run_scan(connection, copy)) return;
+    } else if (message->get<pb::StatusRequest>() != nullptr) {
+      if (!connection.send(status_reply(negotiated))) return;
     } else if (const auto* abort = message->get<pb::Abort>()) {
       (void)connection.send(
           slproto::to_proto(make_error(Errc::invalid_argument, "no scan is running"), abort->scan_id()));
@@ -212,6 +309,8 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
     } else if (const auto* r = message->get<pb::ScanRequest>()) {
       (void)connection.send(slproto::to_proto(
           make_error(Errc::busy, "scan " + std::to_string(plan->scan_id) + " is running"), r->scan_id()));
+    } else if (message->get<pb::StatusRequest>() != nullptr) {
+      (void)connection.send(status_reply(negotiated_));
     }
   }
   runner.join();
@@ -245,6 +344,20 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
     if (outcome.state != pb::SCAN_STATE_DONE) stats_.last_error = outcome.error.message;
     stats_.last_timing = report;
     stats_.last_backpressure_pauses = outcome.backpressure_pauses;
+    pb::LastScan& last = stats_.last_scan;
+    last.set_scan_id(plan->scan_id);
+    last.set_final_state(outcome.state);
+    last.set_finished_unix_ns(static_cast<std::uint64_t>(
+        std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
+            .count()));
+    last.set_views_completed(outcome.views_completed);
+    last.set_views_requested(static_cast<std::uint32_t>(request.turntable_angles_deg_size()));
+    last.set_frames_sent(frames_sent);
+    last.set_frames_total(plan->frames_total());
+    last.set_duration_ns(static_cast<std::uint64_t>(outcome.duration_ns));
+    last.set_text(outcome.state == pb::SCAN_STATE_DONE ? "scan complete" : outcome.error.message);
+    last.set_host(connection.peer_address());
+    stats_.has_last_scan = true;
   }
   std::fprintf(stderr, "slscand: scan %llu %s: %llu of %llu frames sent%s%s\n",
                static_cast<unsigned long long>(plan->scan_id), state_name(outcome.state),

@@ -3,7 +3,7 @@
 //
 //   offset size  field
 //        0    4  magic "SLPF"
-//        4    2  protocol version
+//        4    2  framing version (1; not the negotiated protocol version)
 //        6    1  message type (MessageType)
 //        7    1  flags (must be 0 in version 1)
 //        8    4  control length  (<= 1 MiB)   serialised protobuf message
@@ -36,7 +36,7 @@ inline constexpr std::uint32_t max_control_length = 1u << 20;
 inline constexpr std::uint32_t max_payload_length = 256u << 20;
 
 struct WireHeader {
-  std::uint16_t version = protocol_version;
+  std::uint16_t version = framing_version;
   MessageType type = MessageType::heartbeat;
   std::uint8_t flags = 0;
   std::uint32_t control_length = 0;

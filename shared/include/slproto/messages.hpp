@@ -15,10 +15,20 @@
 
 namespace slproto {
 
-// Highest and lowest framing/protocol version this build speaks (the wire header's version
-// field and Hello.protocol_version).
-inline constexpr std::uint16_t protocol_version = 1;
+// Highest and lowest protocol version (the message set, negotiated by Hello.protocol_version)
+// this build speaks. 2 added StatusRequest/StatusReply; a build still speaks 1 with peers that
+// know nothing newer, and then sends them only version-1 messages.
+inline constexpr std::uint16_t protocol_version = 2;
 inline constexpr std::uint16_t min_protocol_version = 1;
+// The protocol version that introduced each message that is not in every version.
+inline constexpr std::uint16_t status_protocol_version = 2;
+
+// Version of the record layout (the 32-byte wire header's version field and a capture file's
+// record version). It is not the protocol version: the layout has not changed since 1, and
+// keeping it apart is what lets two builds with different protocol ranges read each other's
+// Hello and say which versions they speak instead of failing on the first header.
+inline constexpr std::uint16_t framing_version = 1;
+inline constexpr std::uint16_t min_framing_version = 1;
 
 // The record type byte of the wire header. Values are part of the wire format: never reuse.
 enum class MessageType : std::uint8_t {
@@ -31,15 +41,17 @@ enum class MessageType : std::uint8_t {
   error = 7,
   abort = 8,
   heartbeat = 9,
+  status_request = 10,  // protocol >= 2
+  status_reply = 11,    // protocol >= 2
 };
-inline constexpr std::uint8_t max_message_type = 9;
+inline constexpr std::uint8_t max_message_type = 11;
 
 const char* message_type_name(MessageType type) noexcept;
 bool is_known_message_type(std::uint8_t value) noexcept;
 
 // One alternative per MessageType, in MessageType order (index = type - 1).
 using Body = std::variant<pb::Hello, pb::HelloReply, pb::ScanRequest, pb::Progress, pb::FrameHeader, pb::ScanDone,
-                          pb::Error, pb::Abort, pb::Heartbeat>;
+                          pb::Error, pb::Abort, pb::Heartbeat, pb::StatusRequest, pb::StatusReply>;
 
 template <class T>
 struct message_type_of;
@@ -78,6 +90,14 @@ struct message_type_of<pb::Abort> {
 template <>
 struct message_type_of<pb::Heartbeat> {
   static constexpr MessageType value = MessageType::heartbeat;
+};
+template <>
+struct message_type_of<pb::StatusRequest> {
+  static constexpr MessageType value = MessageType::status_request;
+};
+template <>
+struct message_type_of<pb::StatusReply> {
+  static constexpr MessageType value = MessageType::status_reply;
 };
 template <class T>
 inline constexpr MessageType message_type_v = message_type_of<T>::value;

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <mutex>
@@ -39,7 +40,13 @@ struct DaemonStats {
   // carries only mean/stddev/min/max/p99) and how often back-pressure paused the sequencer.
   TimingReport last_timing;
   std::uint64_t last_backpressure_pauses = 0;
+  // What StatusReply.last_scan carries; has_last_scan() is false until a scan ran.
+  slproto::pb::LastScan last_scan;
+  bool has_last_scan = false;
 };
+
+// slscand's version ("slscand 0.2.0"), from the project version.
+const char* software_version();
 
 class Daemon {
  public:
@@ -50,7 +57,9 @@ class Daemon {
   Daemon& operator=(const Daemon&) = delete;
 
   std::uint16_t port() const { return server_.port(); }
-  // Serves hosts one after the other until stop() is called (from any thread).
+  // Serves hosts until stop() is called (from any thread). One host at a time uses the scanner;
+  // a host that connects meanwhile gets a status-only connection (StatusRequest is answered,
+  // ScanRequest gets Errc::busy naming the host that has the scanner).
   void serve();
   void stop();
   bool busy() const { return scanning_.load(); }
@@ -61,6 +70,11 @@ class Daemon {
  private:
   Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server);
   void handle_connection(slproto::Connection& connection);
+  void handle_status_only(slproto::Connection& connection);
+  // The hello exchange; the negotiated protocol version, 0 if the hello was refused.
+  std::uint32_t handshake(slproto::Connection& connection);
+  slproto::pb::StatusReply status_reply(std::uint32_t negotiated) const;
+  std::uint64_t capabilities() const;
   // False when the connection is gone.
   bool run_scan(slproto::Connection& connection, const slproto::pb::ScanRequest& request);
   void write_timing_log(const ScanPlan& plan, const ScanOutcome& outcome, const std::vector<TimingEvent>& sent);
@@ -75,6 +89,11 @@ class Daemon {
   mutable std::mutex stats_mutex_;
   DaemonStats stats_;
   std::string realtime_warning_;
+  std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+  std::atomic<bool> primary_active_{false};
+  std::atomic<std::uint32_t> negotiated_{0};  // the primary connection's protocol version
+  mutable std::mutex primary_mutex_;
+  std::string primary_peer_;
 };
 
 // Frame-delivery statistics for ScanDone.

@@ -1,0 +1,34 @@
+// slscan status / discover: what a scanner on the network is, runs and did last.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "run.hpp"
+#include "slproto/slproto.pb.h"
+
+namespace slscan::app {
+
+inline constexpr std::uint16_t default_scanner_port = 5025;
+
+// "HOST", "HOST:PORT", "[IPV6]:PORT" or a bare IPv6 literal -> host and port (default 5025).
+// Throws std::invalid_argument naming the text for an empty host or a bad port.
+std::pair<std::string, std::uint16_t> parse_scanner_address(const std::string& text);
+
+// Reads the first line of a token file; throws io::IoError naming the file if it cannot.
+std::string read_token_file(const std::string& path);
+
+struct StatusCommand {
+  std::string address;     // HOST[:PORT]
+  std::string token_file;  // "" = no token
+  bool json = false;
+};
+int run_status(const StatusCommand& command, const Console& console);
+
+// The human-readable report `slscan status` prints (one "key: value" line each).
+std::string format_status(const slproto::pb::StatusReply& status, const std::string& address,
+                          std::int64_t now_unix_ns);
+
+}  // namespace slscan::app
