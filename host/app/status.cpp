@@ -105,8 +105,11 @@ nlohmann::json to_json(const pb::StatusReply& s, const std::string& address) {
                       {"uptime_s", static_cast<double>(s.uptime_ns()) * 1e-9},
                       {"scanning", s.scanning()},
                       {"connections", s.connections()},
-                      {"scans", {{"done", s.scans_done()}, {"aborted", s.scans_aborted()}, {"failed", s.scans_failed()},
-                                 {"refused", s.scans_refused()}}},
+                      {"scans",
+                       {{"done", s.scans_done()},
+                        {"aborted", s.scans_aborted()},
+                        {"failed", s.scans_failed()},
+                        {"refused", s.scans_refused()}}},
                       {"last_error", s.last_error()},
                       {"last_scan", nullptr}};
   if (s.has_last_scan()) {
@@ -165,8 +168,8 @@ int run_status(const StatusCommand& command, const Console&) {
   const std::string where = host + ":" + std::to_string(port);
   auto connection = slproto::connect(host, port, std::chrono::seconds(3));
   if (!connection) throw DeviceError("cannot connect to " + where + ": " + connection.error().message);
-  auto reply = slproto::client_handshake(*connection, slproto::make_hello("slscan status", "slscan " SLSCAN_VERSION,
-                                                                          0, token));
+  auto reply =
+      slproto::client_handshake(*connection, slproto::make_hello("slscan status", "slscan " SLSCAN_VERSION, 0, token));
   if (!reply) throw DeviceError("the scanner at " + where + " refused the connection: " + reply.error().message);
   auto status = slproto::request_status(*connection, *reply);
   if (!status) throw DeviceError(where + ": " + status.error().message);
@@ -174,9 +177,9 @@ int run_status(const StatusCommand& command, const Console&) {
   if (command.json) {
     std::cout << to_json(*status, where).dump(2) << "\n";
   } else {
-    const auto now = std::chrono::duration_cast<std::chrono::nanoseconds>(
-                         std::chrono::system_clock::now().time_since_epoch())
-                         .count();
+    const auto now =
+        std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::system_clock::now().time_since_epoch())
+            .count();
     std::cout << format_status(*status, where, now);
   }
   return exit_ok;

@@ -28,7 +28,6 @@ struct StatusCommand {
 int run_status(const StatusCommand& command, const Console& console);
 
 // The human-readable report `slscan status` prints (one "key: value" line each).
-std::string format_status(const slproto::pb::StatusReply& status, const std::string& address,
-                          std::int64_t now_unix_ns);
+std::string format_status(const slproto::pb::StatusReply& status, const std::string& address, std::int64_t now_unix_ns);
 
 }  // namespace slscan::app

@@ -8,8 +8,8 @@ Result<pb::StatusReply> request_status(Connection& connection, const pb::HelloRe
                                        std::chrono::milliseconds timeout) {
   if (hello_reply.protocol_version() < status_protocol_version) {
     const std::uint32_t board_max = hello_reply.protocol_version();
-    const std::uint32_t board_min = hello_reply.min_protocol_version() != 0 ? hello_reply.min_protocol_version()
-                                                                            : board_max;
+    const std::uint32_t board_min =
+        hello_reply.min_protocol_version() != 0 ? hello_reply.min_protocol_version() : board_max;
     return make_error(Errc::wrong_version,
                       "board '" + hello_reply.board_name() + "' (" + hello_reply.software_version() +
                           ") speaks slproto " + std::to_string(board_min) + ".." + std::to_string(board_max) +
@@ -19,7 +19,8 @@ Result<pb::StatusReply> request_status(Connection& connection, const pb::HelloRe
   if (Status sent = connection.send(pb::StatusRequest{}, timeout); !sent) return sent.error();
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
     if (left <= std::chrono::milliseconds(0))
       return make_error(Errc::timeout, "no status reply from " + connection.peer_address() + " within " +
                                            std::to_string(timeout.count()) + " ms");

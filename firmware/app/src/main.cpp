@@ -1,5 +1,7 @@
 // slscand: the scanner board's daemon.
 //   slscand --board boards/sim.toml [--port N] [--bind ADDR] [--timing-log DIR] [--token T]
+//   slscand --config /etc/slscan/slscand.toml [options above override it]
+//   slscand --config FILE | --board FILE --check
 //   slscand --board boards/sim.toml --timing-report [--views N] [--exposure-us E] [--period-us P]
 //   slscand --list-backends
 // Exit codes: 0 ok, 1 runtime failure, 2 bad command line or board file.
@@ -13,6 +15,8 @@
 #include <thread>
 
 #include "slproto/messages.hpp"
+#include "slscand/app/check.hpp"
+#include "slscand/app/config.hpp"
 #include "slscand/app/daemon.hpp"
 #include "slscand/sequencer/realtime.hpp"
 
@@ -27,10 +31,14 @@ void on_signal(int) {
 void usage(std::FILE* out) {
   std::fputs(
       "usage: slscand --board FILE [--port N] [--bind ADDR] [--timing-log DIR] [--token TOKEN] [--no-realtime]\n"
+      "       slscand --config FILE [the options above override the file's]\n"
+      "       slscand (--config FILE | --board FILE) --check\n"
       "       slscand --board FILE --timing-report [--views N] [--exposure-us E] [--period-us P]\n"
       "       slscand --list-backends\n"
       "Serves scans to one host at a time over slproto (TCP). --timing-report runs one scan on the\n"
-      "board locally (use the sim board for a machine without hardware) and prints its timing.\n",
+      "board locally (use the sim board for a machine without hardware) and prints its timing.\n"
+      "--check reports each device, permission and setting the board needs, present or missing with\n"
+      "the fix, and exits 0 only if nothing is missing.\n",
       out);
 }
 
@@ -98,9 +106,9 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string board_path, bind, timing_dir, token;
+  std::string board_path, bind, timing_dir, token, config_path;
   long port = -1, views = 6, exposure_us = 0, period_us = 0;
-  bool report = false, realtime = true;
+  bool report = false, realtime = true, check = false, bind_given = false, realtime_given = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&](const char* name) -> const char* {
@@ -112,8 +120,12 @@ int main(int argc, char** argv) {
     };
     if (arg == "--board")
       board_path = value("--board");
+    else if (arg == "--config")
+      config_path = value("--config");
+    else if (arg == "--check")
+      check = true;
     else if (arg == "--bind")
-      bind = value("--bind");
+      bind = value("--bind"), bind_given = true;
     else if (arg == "--timing-log")
       timing_dir = value("--timing-log");
     else if (arg == "--token")
@@ -121,7 +133,7 @@ int main(int argc, char** argv) {
     else if (arg == "--timing-report")
       report = true;
     else if (arg == "--no-realtime")
-      realtime = false;
+      realtime = false, realtime_given = true;
     else if (arg == "--list-backends") {
       std::printf("%s\n", slscand::hal::available_backends().c_str());
       return 0;
@@ -145,8 +157,23 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  std::string token_file;
+  if (!config_path.empty()) {
+    // The configuration fills in what the command line left out.
+    auto config = slscand::load_daemon_config(config_path);
+    if (!config) {
+      std::fprintf(stderr, "slscand: %s\n", config.error().message.c_str());
+      return 2;
+    }
+    if (board_path.empty()) board_path = config->board;
+    if (!bind_given && config->bind_address) bind = *config->bind_address;
+    if (port < 0 && config->port) port = *config->port;
+    if (timing_dir.empty()) timing_dir = config->timing_log_dir;
+    if (!realtime_given && config->realtime) realtime = *config->realtime;
+    token_file = config->token_file;
+  }
   if (board_path.empty()) {
-    std::fprintf(stderr, "slscand: --board is required\n");
+    std::fprintf(stderr, "slscand: --board (or --config with a board) is required\n");
     usage(stderr);
     return 2;
   }
@@ -154,6 +181,25 @@ int main(int argc, char** argv) {
   if (!board) {
     std::fprintf(stderr, "slscand: %s\n", board.error().message.c_str());
     return 2;
+  }
+  if (check) {
+    slscand::CheckOptions options;
+    options.bind_address = bind;
+    options.port = static_cast<int>(port);
+    options.token_file = token.empty() ? token_file : std::string();
+    options.token_given = !token.empty();
+    options.realtime = realtime;
+    const slscand::CheckReport result = slscand::check_board(*board, options);
+    std::fputs(result.to_text().c_str(), stdout);
+    return result.all_ok() ? 0 : 1;
+  }
+  if (token.empty() && !token_file.empty()) {
+    auto loaded = slscand::read_token_file(token_file);
+    if (!loaded) {
+      std::fprintf(stderr, "slscand: %s (token_file in %s)\n", loaded.error().message.c_str(), config_path.c_str());
+      return 2;
+    }
+    token = std::move(*loaded);
   }
   auto devices = slscand::hal::open_board_devices(*board);
   if (!devices) {

@@ -80,6 +80,16 @@ Result<std::unique_ptr<SerialPort>> open_serial(const BoardConfig& board, BoardD
 
 }  // namespace
 
+Result<std::unique_ptr<GpioChip>> open_board_gpio_chip(const BoardConfig& board, BoardDevices& devices) {
+  return open_chip(board, devices);
+}
+Result<std::unique_ptr<Camera>> open_board_camera(const BoardConfig& board, BoardDevices& devices) {
+  return open_camera(board, devices);
+}
+Result<std::unique_ptr<SerialPort>> open_board_serial_port(const BoardConfig& board, BoardDevices& devices) {
+  return open_serial(board, devices);
+}
+
 std::string available_backends() {
   std::string gpio = "gpio:";
   std::string camera = "camera:";

@@ -12,6 +12,7 @@
 #include "slscand/hal/camera.hpp"
 #include "slscand/hal/gpio.hpp"
 #include "slscand/hal/projector.hpp"
+#include "slscand/hal/serial_port.hpp"
 #include "slscand/hal/turntable.hpp"
 
 namespace slrig {
@@ -44,6 +45,12 @@ struct OpenOptions {
 };
 
 slproto::Result<BoardDevices> open_board_devices(const BoardConfig& board, const OpenOptions& options = {});
+
+// The steps of open_board_devices one at a time, for `slscand --check` (which goes on past a
+// missing device to report the others). On sim boards `devices.sim_rig` must be set first.
+slproto::Result<std::unique_ptr<GpioChip>> open_board_gpio_chip(const BoardConfig& board, BoardDevices& devices);
+slproto::Result<std::unique_ptr<Camera>> open_board_camera(const BoardConfig& board, BoardDevices& devices);
+slproto::Result<std::unique_ptr<SerialPort>> open_board_serial_port(const BoardConfig& board, BoardDevices& devices);
 
 // "gpio: gpiod(v1) sim; camera: v4l2 libcamera sim; serial: termios libserialport emulator".
 std::string available_backends();

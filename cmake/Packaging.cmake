@@ -1,0 +1,81 @@
+# Debian packages (CPack DEB), one per component:
+#   slscand - the board daemon, its board files, systemd unit, udev rules and /etc/slscan defaults
+#             (amd64 from a native build; arm64/armhf from the cross presets)
+#   slscan  - the host command (native builds with SLSCAN_BUILD_HOST only)
+# `cpack --config <build>/CPackConfig.cmake` after a full build; scripts/package.sh does this
+# for CI and checks the result.
+
+set(SLSCAN_PACKAGING_DIR ${PROJECT_SOURCE_DIR}/packaging)
+
+# Board side: installed under the prefix (/usr) except what Debian wants at fixed places.
+install(DIRECTORY ${PROJECT_SOURCE_DIR}/boards/ DESTINATION share/slscan/boards COMPONENT slscand
+        FILES_MATCHING PATTERN "*.toml")
+install(FILES ${SLSCAN_PACKAGING_DIR}/slscand.service DESTINATION /lib/systemd/system COMPONENT slscand)
+install(FILES ${SLSCAN_PACKAGING_DIR}/60-slscan.rules DESTINATION /lib/udev/rules.d COMPONENT slscand)
+install(FILES ${SLSCAN_PACKAGING_DIR}/slscand.toml DESTINATION /etc/slscan COMPONENT slscand)
+install(FILES ${PROJECT_SOURCE_DIR}/docs/appliance.md ${PROJECT_SOURCE_DIR}/docs/hardware.md
+        DESTINATION share/doc/slscand COMPONENT slscand)
+install(FILES ${SLSCAN_PACKAGING_DIR}/copyright DESTINATION share/doc/slscand COMPONENT slscand)
+if(SLSCAN_BUILD_HOST)
+  install(FILES ${PROJECT_SOURCE_DIR}/docs/cli.md ${PROJECT_SOURCE_DIR}/docs/appliance.md
+          DESTINATION share/doc/slscan COMPONENT slscan)
+  install(FILES ${SLSCAN_PACKAGING_DIR}/copyright DESTINATION share/doc/slscan COMPONENT slscan)
+endif()
+
+set(CPACK_GENERATOR DEB)
+set(CPACK_PACKAGE_NAME slscan)
+set(CPACK_PACKAGE_VENDOR "slscan project")
+set(CPACK_PACKAGE_CONTACT "slscan maintainers <maintainers@slscan.invalid>")  # set a real address before publishing
+set(CPACK_PACKAGE_VERSION ${PROJECT_VERSION})
+set(CPACK_PACKAGING_INSTALL_PREFIX /usr)
+set(CPACK_STRIP_FILES ON)  # the dev build's -g would make slscan ~10x larger
+set(CPACK_DEB_COMPONENT_INSTALL ON)
+set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)  # slscand_0.2.0-1_arm64.deb
+set(CPACK_DEBIAN_PACKAGE_RELEASE 1)
+set(CPACK_DEBIAN_PACKAGE_SECTION science)
+set(CPACK_DEBIAN_PACKAGE_PRIORITY optional)
+set(CPACK_DEBIAN_PACKAGE_CONTROL_STRICT_PERMISSION ON)
+set(CPACK_DEBIAN_COMPRESSION_TYPE xz)
+set(CPACK_WARN_ON_ABSOLUTE_INSTALL_DESTINATION OFF)  # /etc, /lib/systemd, /lib/udev on purpose
+
+set(CPACK_COMPONENTS_ALL slscand)
+if(SLSCAN_BUILD_HOST)
+  list(APPEND CPACK_COMPONENTS_ALL slscan)
+endif()
+set(CPACK_DEBIAN_SLSCAND_PACKAGE_NAME slscand)
+set(CPACK_DEBIAN_SLSCAN_PACKAGE_NAME slscan)
+set(CPACK_COMPONENT_SLSCAND_DESCRIPTION
+    "structured-light 3D scanner daemon for the scanner board\n slscand drives two DLP projectors, a camera and a turntable from a board file and\n serves scans to the slscan host program over the network (slproto).\n This package runs it as the slscand service with real-time priority and\n hardware access granted by the systemd unit and udev rules.")
+set(CPACK_COMPONENT_SLSCAN_DESCRIPTION
+    "structured-light 3D scanner host program\n slscan scans with a networked slscand scanner, reconstructs, registers and\n meshes the views, calibrates the rig and measures artefacts.")
+set(CPACK_DEBIAN_SLSCAND_PACKAGE_CONTROL_EXTRA
+    "${SLSCAN_PACKAGING_DIR}/deb/conffiles;${SLSCAN_PACKAGING_DIR}/deb/postinst;${SLSCAN_PACKAGING_DIR}/deb/prerm;${SLSCAN_PACKAGING_DIR}/deb/postrm")
+
+# Dependencies. Native: dpkg-shlibdeps reads the installed libraries' packages. Cross: this
+# machine's dpkg knows no arm64/armhf packages, so they are declared from the sonames the
+# board build links (the cross sysroot's packages, scripts/cross-build.sh); scripts/package.sh
+# checks every NEEDED entry of the binary is covered by this list.
+if(CMAKE_CROSSCOMPILING)
+  if(CMAKE_SYSTEM_PROCESSOR STREQUAL "aarch64")
+    set(SLSCAN_DEB_ARCH arm64)
+  elseif(CMAKE_SYSTEM_PROCESSOR MATCHES "^arm")
+    set(SLSCAN_DEB_ARCH armhf)
+  else()
+    message(FATAL_ERROR "packaging: no Debian architecture for ${CMAKE_SYSTEM_PROCESSOR}")
+  endif()
+  set(CPACK_DEBIAN_PACKAGE_ARCHITECTURE ${SLSCAN_DEB_ARCH})
+  set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS OFF)
+  # soname -> package (bookworm versions, the oldest the board build was linked against).
+  set(SLSCAN_CROSS_DEPENDS
+      "libc6 (>= 2.36), libstdc++6 (>= 12), libgcc-s1 (>= 3.0), libprotobuf-lite32 (>= 3.21.12), libgpiod2 (>= 1.6.3), libserialport0 (>= 0.1.1)")
+  set(CPACK_DEBIAN_SLSCAND_PACKAGE_DEPENDS "${SLSCAN_CROSS_DEPENDS}")
+else()
+  set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)
+endif()
+# useradd/groupadd (passwd) and deb-systemd-helper (init-system-helpers) are in every Debian
+# and Raspberry Pi OS base system; systemd-sysv is only recommended: the package installs into
+# containers and chroots without it.
+set(CPACK_DEBIAN_SLSCAND_PACKAGE_RECOMMENDS "systemd-sysv, udev, avahi-daemon")
+set(CPACK_DEBIAN_SLSCAN_PACKAGE_RECOMMENDS "avahi-daemon")
+
+include(CPack)

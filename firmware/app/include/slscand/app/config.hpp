@@ -1,0 +1,30 @@
+// slscand's own configuration file (/etc/slscan/slscand.toml in the package): which board file,
+// and the network and token settings that differ from the board file's. Command-line options
+// override it. Unknown keys and wrong types are errors naming the file, line and key.
+#pragma once
+
+#include <optional>
+#include <string>
+
+#include "slproto/result.hpp"
+
+namespace slscand {
+
+struct DaemonConfig {
+  std::string source_path;             // the file it came from
+  std::string board;                   // board file path (relative paths: to the config's folder)
+  std::optional<std::string> bind_address;  // unset = the board file's
+  std::optional<int> port;             // unset = the board file's
+  std::string token_file;              // "" = no token
+  std::string timing_log_dir;          // "" = none
+  std::optional<bool> realtime;        // unset = true (the board file still decides)
+};
+
+slproto::Result<DaemonConfig> parse_daemon_config(const std::string& toml_text, const std::string& source_name);
+slproto::Result<DaemonConfig> load_daemon_config(const std::string& path);
+
+// Reads a token file: first line, trailing white space cut. Refuses a file that is missing,
+// empty, or readable or writable by group or others (mode & 077), naming the path and the fix.
+slproto::Result<std::string> read_token_file(const std::string& path);
+
+}  // namespace slscand
