@@ -16,7 +16,24 @@ install(FILES ${SLSCAN_PACKAGING_DIR}/slscand.toml DESTINATION /etc/slscan COMPO
 install(FILES ${PROJECT_SOURCE_DIR}/docs/appliance.md ${PROJECT_SOURCE_DIR}/docs/hardware.md
         DESTINATION share/doc/slscand COMPONENT slscand)
 install(FILES ${SLSCAN_PACKAGING_DIR}/copyright DESTINATION share/doc/slscand COMPONENT slscand)
+
+# Debian's changelog.Debian.gz (gzip -9n: no name or time stamp, the same bytes every build).
+# Its top entry must carry this version: a release bumps both.
+set_property(DIRECTORY APPEND PROPERTY CMAKE_CONFIGURE_DEPENDS ${SLSCAN_PACKAGING_DIR}/changelog.Debian)
+file(STRINGS ${SLSCAN_PACKAGING_DIR}/changelog.Debian SLSCAN_CHANGELOG_TOP LIMIT_COUNT 1)
+if(NOT SLSCAN_CHANGELOG_TOP MATCHES "^slscan \\(${PROJECT_VERSION}-[0-9]+\\)")
+  message(FATAL_ERROR "packaging/changelog.Debian starts with '${SLSCAN_CHANGELOG_TOP}': add an entry for ${PROJECT_VERSION}")
+endif()
+set(SLSCAN_CHANGELOG_GZ ${CMAKE_CURRENT_BINARY_DIR}/packaging/changelog.Debian.gz)
+file(MAKE_DIRECTORY ${CMAKE_CURRENT_BINARY_DIR}/packaging)
+execute_process(COMMAND gzip -9nc ${SLSCAN_PACKAGING_DIR}/changelog.Debian OUTPUT_FILE ${SLSCAN_CHANGELOG_GZ}
+                RESULT_VARIABLE SLSCAN_GZIP_RESULT)
+if(NOT SLSCAN_GZIP_RESULT EQUAL 0)
+  message(FATAL_ERROR "packaging: gzip of packaging/changelog.Debian failed")
+endif()
+install(FILES ${SLSCAN_CHANGELOG_GZ} DESTINATION share/doc/slscand COMPONENT slscand)
 if(SLSCAN_BUILD_HOST)
+  install(FILES ${SLSCAN_CHANGELOG_GZ} DESTINATION share/doc/slscan COMPONENT slscan)
   install(FILES ${PROJECT_SOURCE_DIR}/docs/cli.md ${PROJECT_SOURCE_DIR}/docs/appliance.md
           DESTINATION share/doc/slscan COMPONENT slscan)
   install(FILES ${SLSCAN_PACKAGING_DIR}/copyright DESTINATION share/doc/slscan COMPONENT slscan)
@@ -44,10 +61,17 @@ if(SLSCAN_BUILD_HOST)
 endif()
 set(CPACK_DEBIAN_SLSCAND_PACKAGE_NAME slscand)
 set(CPACK_DEBIAN_SLSCAN_PACKAGE_NAME slscan)
-set(CPACK_COMPONENT_SLSCAND_DESCRIPTION
-    "structured-light 3D scanner daemon for the scanner board\n slscand drives two DLP projectors, a camera and a turntable from a board file and\n serves scans to the slscan host program over the network (slproto).\n This package runs it as the slscand service with real-time priority and\n hardware access granted by the systemd unit and udev rules.")
-set(CPACK_COMPONENT_SLSCAN_DESCRIPTION
-    "structured-light 3D scanner host program\n slscan scans with a networked slscand scanner, reconstructs, registers and\n meshes the views, calibrates the rig and measures artefacts.")
+# First line: the synopsis; CPack indents the rest.
+set(CPACK_DEBIAN_SLSCAND_DESCRIPTION
+    "structured-light 3D scanner daemon for the scanner board
+slscand drives two DLP projectors, a camera and a turntable from a board
+file and serves scans to the slscan host program over the network
+(slproto). This package runs it as the slscand service with real-time
+priority and hardware access granted by its systemd unit and udev rules.")
+set(CPACK_DEBIAN_SLSCAN_DESCRIPTION
+    "structured-light 3D scanner host program
+slscan scans with a networked slscand scanner, reconstructs, registers and
+meshes the views, calibrates the rig and measures artefacts.")
 set(CPACK_DEBIAN_SLSCAND_PACKAGE_CONTROL_EXTRA
     "${SLSCAN_PACKAGING_DIR}/deb/conffiles;${SLSCAN_PACKAGING_DIR}/deb/postinst;${SLSCAN_PACKAGING_DIR}/deb/prerm;${SLSCAN_PACKAGING_DIR}/deb/postrm")
 

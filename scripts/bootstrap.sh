@@ -42,6 +42,10 @@ packages=(
   googletest libgtest-dev libgmock-dev libbenchmark-dev chromium
   # cross builds
   g++-aarch64-linux-gnu g++-arm-linux-gnueabihf qemu-user-static file
+  # appliance: mDNS/DNS-SD (slscand publishes, slscan discover browses; the daemon and D-Bus for
+  # the discovery test), Debian packages and their checks (scripts/package.sh)
+  libavahi-client-dev avahi-daemon dbus
+  dpkg-dev fakeroot systemd lintian
 )
 
 stamp=/var/lib/slscan-bootstrap.stamp

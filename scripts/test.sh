@@ -6,10 +6,13 @@
 #   4. the libgpiod v2 GPIO backend, compiled and unit-tested against bookworm-backports' 2.x
 #   5. the firmware cross-built for aarch64 (scripts/cross-build.sh arm64): slscand must be an
 #      aarch64 ELF, and the firmware tests run under qemu-user
-#   6. each libFuzzer target for a short fixed time on its committed corpus
-#   7. clang-format check of every source file
+#   6. the Debian packages (scripts/package.sh): amd64 slscand + slscan from the dev build, arm64
+#      slscand from step 5's cross build, metadata/contents checks, a scratch-root unpack,
+#      systemd-analyze verify of the unit, lintian
+#   7. each libFuzzer target for a short fixed time on its committed corpus
+#   8. clang-format check of every source file
 # Usage: scripts/test.sh   (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 / SLSCAN_SKIP_GPIOD2=1 /
-#        SLSCAN_SKIP_CROSS=1 to shorten)
+#        SLSCAN_SKIP_CROSS=1 / SLSCAN_SKIP_PACKAGE=1 to shorten)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -45,6 +48,15 @@ if [ "${SLSCAN_SKIP_CROSS:-0}" != 1 ]; then
   step "aarch64 cross build of the firmware + its tests under qemu-user"
   scripts/cross-build.sh arm64
 fi
+
+# ---- BEGIN packages (issue 11: appliance)
+if [ "${SLSCAN_SKIP_PACKAGE:-0}" != 1 ]; then
+  step "Debian packages: amd64 from the dev build, arm64 from the cross build; unit verify, lintian"
+  # The arm64 package is required whenever the cross step above ran.
+  if [ "${SLSCAN_SKIP_CROSS:-0}" != 1 ]; then require_arm64=1; else require_arm64=0; fi
+  SLSCAN_PACKAGE_REQUIRE_ARM64=$require_arm64 scripts/package.sh build/dev
+fi
+# ---- END packages
 
 if [ "${SLSCAN_SKIP_FUZZ:-0}" != 1 ] && [ -d tests/fuzz ]; then
   step "fuzz smoke (libFuzzer, clang-14)"

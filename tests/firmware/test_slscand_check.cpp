@@ -52,9 +52,10 @@ TEST(SlscandCheck, SimBoardPassesEveryCheck) {
     if (realtime_may_be_missing(item)) continue;
     EXPECT_EQ(item.state, CheckState::ok) << item.name << ": " << item.detail;
   }
-  for (const char* name : {"backends", "gpio chip 'sim-gpio'", "gpio lines projector.left", "gpio lines projector.right",
-                           "camera 'virtual'", "camera controls", "serial port 'pty'", "turntable answer",
-                           "real-time scheduling", "memory locking", "network bind 127.0.0.1:0", "token"})
+  for (const char* name :
+       {"backends", "gpio chip 'sim-gpio'", "gpio lines projector.left", "gpio lines projector.right",
+        "camera 'virtual'", "camera controls", "serial port 'pty'", "turntable answer", "real-time scheduling",
+        "memory locking", "network bind 127.0.0.1:0", "token"})
     EXPECT_NE(report.find(name), nullptr) << "no item " << name << " in\n" << text;
   EXPECT_THAT(text, HasSubstr("turntable answer: GRBL answered; angle 0.00 deg"));
   EXPECT_THAT(text, HasSubstr("token: none: loopback only, no token needed"));

@@ -137,8 +137,8 @@ void check_camera(Checker& c, const hal::BoardConfig& board, hal::BoardDevices& 
   if (auto s = devices.camera->set_trigger_mode(hal::TriggerMode::external); !s)
     problems.push_back("external trigger: " + s.error().message);
   if (problems.empty()) {
-    c.ok("camera controls", std::to_string(format->width) + " x " + std::to_string(format->height) +
-                                ", exposure " + std::to_string(static_cast<long>(board.pattern_exposure_us)) +
+    c.ok("camera controls", std::to_string(format->width) + " x " + std::to_string(format->height) + ", exposure " +
+                                std::to_string(static_cast<long>(board.pattern_exposure_us)) +
                                 " us, gain, external trigger");
     devices.camera_format = *format;
   } else {
@@ -156,14 +156,14 @@ void check_turntable(Checker& c, const hal::BoardConfig& board, hal::BoardDevice
   auto port = hal::open_board_serial_port(board, devices);
   if (!port) {
     const std::string& e = port.error().message;
-    c.missing(name, e,
-              contains(e, "built without")
-                  ? "install a slscand built with the '" + board.serial_backend +
-                        "' backend, or change [turntable] serial"
-                  : permission_fix(e, "dialout",
-                                   "plug in the turntable's USB serial adapter; `ls -l /dev/serial/by-id/` shows it "
-                                   "(and `lsusb` its usb:VVVV:PPPP id); put it in [turntable] port of " +
-                                       board.source_path));
+    c.missing(
+        name, e,
+        contains(e, "built without")
+            ? "install a slscand built with the '" + board.serial_backend + "' backend, or change [turntable] serial"
+            : permission_fix(e, "dialout",
+                             "plug in the turntable's USB serial adapter; `ls -l /dev/serial/by-id/` shows it "
+                             "(and `lsusb` its usb:VVVV:PPPP id); put it in [turntable] port of " +
+                                 board.source_path));
     c.skipped("turntable answer", "needs the serial port");
     return;
   }
@@ -251,9 +251,10 @@ void check_network(Checker& c, const hal::BoardConfig& board, const CheckOptions
     const std::string& e = server.error().message;
     std::string fix;
     if (contains(e, "in use"))
-      fix = "another program listens there: an slscand already running? (`systemctl status slscand`, `ss -ltnp "
-            "'sport = :" +
-            std::to_string(port) + "'`); stop it for the check or choose another port";
+      fix =
+          "another program listens there: an slscand already running? (`systemctl status slscand`, `ss -ltnp "
+          "'sport = :" +
+          std::to_string(port) + "'`); stop it for the check or choose another port";
     else if (contains(e, "assign"))
       fix = "the address is not one of this machine's (`ip -br addr`): use 0.0.0.0 (every interface) or one of them";
     else if (contains(e, "denied"))
@@ -310,7 +311,9 @@ std::string CheckReport::to_text() const {
   std::string out = "slscand --check: board '" + board_name + "' (" + board_path + ")\n";
   int missing = 0;
   for (const auto& item : items) {
-    const char* tag = item.state == CheckState::ok ? "[ok]     " : item.state == CheckState::missing ? "[MISSING]" : "[skipped]";
+    const char* tag = item.state == CheckState::ok        ? "[ok]     "
+                      : item.state == CheckState::missing ? "[MISSING]"
+                                                          : "[skipped]";
     out += std::string(tag) + " " + item.name + ": " + item.detail + "\n";
     if (item.state == CheckState::missing) {
       ++missing;
