@@ -12,7 +12,7 @@ namespace slscand {
 enum class CheckState { ok, missing, skipped };
 
 struct CheckItem {
-  std::string name;    // "gpio chip", "camera", "network bind", ...
+  std::string name;  // "gpio chip", "camera", "network bind", ...
   CheckState state = CheckState::ok;
   std::string detail;  // what was found, or the error
   std::string fix;     // for missing items: what to do about it

@@ -11,13 +11,13 @@
 namespace slscand {
 
 struct DaemonConfig {
-  std::string source_path;             // the file it came from
-  std::string board;                   // board file path (relative paths: to the config's folder)
+  std::string source_path;                  // the file it came from
+  std::string board;                        // board file path (relative paths: to the config's folder)
   std::optional<std::string> bind_address;  // unset = the board file's
-  std::optional<int> port;             // unset = the board file's
-  std::string token_file;              // "" = no token
-  std::string timing_log_dir;          // "" = none
-  std::optional<bool> realtime;        // unset = true (the board file still decides)
+  std::optional<int> port;                  // unset = the board file's
+  std::string token_file;                   // "" = no token
+  std::string timing_log_dir;               // "" = none
+  std::optional<bool> realtime;             // unset = true (the board file still decides)
 };
 
 slproto::Result<DaemonConfig> parse_daemon_config(const std::string& toml_text, const std::string& source_name);
