@@ -58,6 +58,11 @@ int main(int argc, char** argv) {
   status_cmd->add_option("--token-file", status.token_file, "File holding the scanner's shared token");
   status_cmd->add_flag("--json", status.json, "Print the status as JSON");
 
+  DiscoverCommand discover;
+  auto* discover_cmd = app.add_subcommand("discover", "Find scanners on the local network (mDNS/DNS-SD via Avahi)");
+  discover_cmd->add_option("--wait", discover.wait_s, "Seconds to listen for answers")->capture_default_str();
+  discover_cmd->add_flag("--json", discover.json, "Print the scanners as JSON");
+
   MeasureCommand measure;
   auto* measure_cmd = app.add_subcommand("measure", "Fit an artefact in a model and print its figures");
   measure_cmd->add_option("model", measure.model_path, "Point cloud (PLY)")->required()->check(CLI::ExistingFile);
@@ -149,6 +154,7 @@ int main(int argc, char** argv) {
       return run_scan(scan, console);
     }
     if (*status_cmd) return run_status(status, console);
+    if (*discover_cmd) return run_discover(discover, console);
     if (*import_cmd) return run_import(import, console);
     if (*calibrate_cmd) return run_calibrate(calibrate, console);
     if (*compare_cmd) return run_compare(compare, console);

@@ -162,6 +162,59 @@ std::string format_status(const pb::StatusReply& s, const std::string& address, 
   return out;
 }
 
+std::string format_discovered(const std::vector<slproto::DiscoveredScanner>& scanners) {
+  std::string out;
+  for (const auto& s : scanners) {
+    const std::string where =
+        (s.address.find(':') != std::string::npos ? "[" + s.address + "]" : s.address) + ":" + std::to_string(s.port);
+    out += s.instance + "  " + where + " (" + s.host_name + (s.interface.empty() ? "" : " on " + s.interface) + ")  ";
+    auto advert = slproto::from_txt_records(s.txt);
+    if (!advert) {
+      out += "unreadable announcement: " + advert.error().message + "\n";
+      continue;
+    }
+    out += "board " + advert->board + ", " + advert->software_version + ", slproto " +
+           std::to_string(advert->min_protocol) + ".." + std::to_string(advert->max_protocol) +
+           (advert->token_required ? ", token required" : "") + (advert->simulated ? ", simulated" : "") + "\n";
+    const std::string skew = slproto::version_skew_message(
+        {slproto::min_protocol_version, slproto::protocol_version}, "slscan " SLSCAN_VERSION,
+        {advert->min_protocol, advert->max_protocol}, advert->board, advert->software_version);
+    if (!skew.empty()) out += "  incompatible: " + skew + "\n";
+  }
+  return out;
+}
+
+int run_discover(const DiscoverCommand& command, const Console& console) {
+  if (!(command.wait_s > 0 && command.wait_s <= 60))
+    throw std::invalid_argument("--wait must be in (0, 60] seconds, not " + std::to_string(command.wait_s));
+  auto found = slproto::browse_scanners(std::chrono::milliseconds(static_cast<long>(command.wait_s * 1000)));
+  if (!found) throw DeviceError(found.error().message);
+  if (command.json) {
+    nlohmann::json list = nlohmann::json::array();
+    for (const auto& s : *found) {
+      nlohmann::json entry = {{"instance", s.instance}, {"host_name", s.host_name}, {"address", s.address},
+                              {"port", s.port},         {"interface", s.interface}, {"txt", s.txt}};
+      if (auto advert = slproto::from_txt_records(s.txt)) {
+        entry["board"] = advert->board;
+        entry["software_version"] = advert->software_version;
+        entry["protocol_range"] = {advert->min_protocol, advert->max_protocol};
+        entry["token_required"] = advert->token_required;
+      }
+      list.push_back(entry);
+    }
+    std::cout << list.dump(2) << "\n";
+    return exit_ok;
+  }
+  if (found->empty()) {
+    console.warn("no scanner answered within " + std::to_string(command.wait_s).substr(0, 4) +
+                 " s (is slscand running with a non-loopback bind_address and avahi-daemon on the board, and "
+                 "are both on this network segment? Otherwise give the scanner as HOST:PORT)");
+    return exit_device;
+  }
+  std::cout << format_discovered(*found);
+  return exit_ok;
+}
+
 int run_status(const StatusCommand& command, const Console&) {
   const auto [host, port] = parse_scanner_address(command.address);
   const std::string token = command.token_file.empty() ? std::string() : read_token_file(command.token_file);

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "run.hpp"
+#include "slproto/mdns.hpp"
 #include "slproto/slproto.pb.h"
 
 namespace slscan::app {
@@ -29,5 +30,15 @@ int run_status(const StatusCommand& command, const Console& console);
 
 // The human-readable report `slscan status` prints (one "key: value" line each).
 std::string format_status(const slproto::pb::StatusReply& status, const std::string& address, std::int64_t now_unix_ns);
+
+struct DiscoverCommand {
+  double wait_s = 3.0;  // how long to listen for answers
+  bool json = false;
+};
+int run_discover(const DiscoverCommand& command, const Console& console);
+
+// One line per scanner: "NAME  HOST:PORT  board B, slscand V, slproto A..B[, token][, simulated]"
+// plus what to upgrade when its protocol range and this host's do not meet.
+std::string format_discovered(const std::vector<slproto::DiscoveredScanner>& scanners);
 
 }  // namespace slscan::app

@@ -171,7 +171,7 @@ TEST(SlscandConfig, ErrorsNameTheFileLineAndKey) {
   };
   EXPECT_EQ(error_of("board = \"b.toml\"\nprot = 7000\n"),
             "/etc/slscan/slscand.toml:2: unknown key 'prot' (known: board, bind_address, port, token_file, "
-            "timing_log_dir, realtime)");
+            "timing_log_dir, realtime, mdns)");
   EXPECT_EQ(error_of("board = \"b.toml\"\nport = 70000\n"),
             "/etc/slscan/slscand.toml:2: port must be an integer in 0..65535");
   EXPECT_EQ(error_of("board = \"b.toml\"\nrealtime = \"yes\"\n"),

@@ -58,14 +58,14 @@ slproto::Result<DaemonConfig> parse_daemon_config(const std::string& toml_text, 
       const auto* number = node.as_integer();
       if (number == nullptr || number->get() < 0 || number->get() > 65535) return wrong("an integer in 0..65535");
       config.port = static_cast<int>(number->get());
-    } else if (name == "realtime") {
+    } else if (name == "realtime" || name == "mdns") {
       const auto* flag = node.as_boolean();
       if (flag == nullptr) return wrong("true or false");
-      config.realtime = flag->get();
+      (name == "realtime" ? config.realtime : config.mdns) = flag->get();
     } else {
       return make_error(Errc::invalid_argument,
                         where(node, source_name) + ": unknown key '" + name +
-                            "' (known: board, bind_address, port, token_file, timing_log_dir, realtime)");
+                            "' (known: board, bind_address, port, token_file, timing_log_dir, realtime, mdns)");
     }
   }
   if (config.board.empty())

@@ -5,6 +5,8 @@
 //   slscand --board boards/sim.toml --timing-report [--views N] [--exposure-us E] [--period-us P]
 //   slscand --list-backends
 // Exit codes: 0 ok, 1 runtime failure, 2 bad command line or board file.
+#include <unistd.h>
+
 #include <atomic>
 #include <cerrno>
 #include <csignal>
@@ -14,6 +16,8 @@
 #include <string>
 #include <thread>
 
+#include "slproto/discovery.hpp"
+#include "slproto/mdns.hpp"
 #include "slproto/messages.hpp"
 #include "slscand/app/check.hpp"
 #include "slscand/app/config.hpp"
@@ -33,6 +37,7 @@ void usage(std::FILE* out) {
       "usage: slscand --board FILE [--port N] [--bind ADDR] [--timing-log DIR] [--token TOKEN] [--no-realtime]\n"
       "       slscand --config FILE [the options above override the file's]\n"
       "       slscand (--config FILE | --board FILE) --check\n"
+      "--no-mdns: do not announce the scanner with mDNS/DNS-SD (avahi-daemon)\n"
       "       slscand --board FILE --timing-report [--views N] [--exposure-us E] [--period-us P]\n"
       "       slscand --list-backends\n"
       "Serves scans to one host at a time over slproto (TCP). --timing-report runs one scan on the\n"
@@ -108,7 +113,7 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
 int main(int argc, char** argv) {
   std::string board_path, bind, timing_dir, token, config_path;
   long port = -1, views = 6, exposure_us = 0, period_us = 0;
-  bool report = false, realtime = true, check = false, bind_given = false, realtime_given = false;
+  bool report = false, realtime = true, check = false, bind_given = false, realtime_given = false, mdns = true;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&](const char* name) -> const char* {
@@ -124,6 +129,8 @@ int main(int argc, char** argv) {
       config_path = value("--config");
     else if (arg == "--check")
       check = true;
+    else if (arg == "--no-mdns")
+      mdns = false;
     else if (arg == "--bind")
       bind = value("--bind"), bind_given = true;
     else if (arg == "--timing-log")
@@ -170,6 +177,7 @@ int main(int argc, char** argv) {
     if (port < 0 && config->port) port = *config->port;
     if (timing_dir.empty()) timing_dir = config->timing_log_dir;
     if (!realtime_given && config->realtime) realtime = *config->realtime;
+    if (config->mdns && !*config->mdns) mdns = false;
     token_file = config->token_file;
   }
   if (board_path.empty()) {
@@ -218,6 +226,29 @@ int main(int argc, char** argv) {
   if (!daemon) {
     std::fprintf(stderr, "slscand: %s\n", daemon.error().message.c_str());
     return 1;
+  }
+  // Announce the scanner on the local network (mDNS/DNS-SD) unless it only listens on loopback.
+  const std::string listen_address = bind.empty() ? board->bind_address : bind;
+  std::unique_ptr<slproto::MdnsPublisher> publisher;
+  if (mdns && listen_address.rfind("127.", 0) != 0 && listen_address != "::1" && listen_address != "localhost") {
+    char host[256] = {};
+    (void)::gethostname(host, sizeof host - 1);
+    slproto::ScannerAdvert advert{board->name,
+                                  slscand::software_version(),
+                                  slproto::min_protocol_version,
+                                  slproto::protocol_version,
+                                  !token.empty(),
+                                  board->is_sim()};
+    auto started = slproto::MdnsPublisher::start("slscan " + board->name + " on " + host, (*daemon)->port(),
+                                                 slproto::to_txt_records(advert));
+    if (started) {
+      publisher = std::move(*started);
+      std::printf("slscand: mDNS: announcing %s on port %u (hosts find it with `slscan discover`)\n",
+                  slproto::dns_sd_service_type, (*daemon)->port());
+    } else {
+      std::fprintf(stderr, "slscand: warning: %s; hosts can still connect to HOST:%u\n",
+                   started.error().message.c_str(), (*daemon)->port());
+    }
   }
   g_daemon = daemon->get();
   std::signal(SIGINT, on_signal);

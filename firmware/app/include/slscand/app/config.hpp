@@ -18,6 +18,7 @@ struct DaemonConfig {
   std::string token_file;                   // "" = no token
   std::string timing_log_dir;               // "" = none
   std::optional<bool> realtime;             // unset = true (the board file still decides)
+  std::optional<bool> mdns;                 // announce with mDNS/DNS-SD; unset = true
 };
 
 slproto::Result<DaemonConfig> parse_daemon_config(const std::string& toml_text, const std::string& source_name);
