@@ -34,7 +34,7 @@ int main(int argc, char** argv) {
       ->check(CLI::ExistingFile);
 
   ScanCommand scan;
-  std::string connect = "127.0.0.1:5025";
+  std::string connect = "127.0.0.1:7878";
   auto* scan_cmd = app.add_subcommand("scan", "Scan with a connected scanner, record the capture and reconstruct it");
   scan_cmd->add_option("--connect", connect, "Scanner address HOST:PORT")->capture_default_str();
   scan_cmd->add_option("--calib", scan.calibration_path, "Calibration file (JSON)")
@@ -54,7 +54,7 @@ int main(int argc, char** argv) {
   StatusCommand status;
   auto* status_cmd =
       app.add_subcommand("status", "Show a scanner's board, firmware and protocol versions and its last scan");
-  status_cmd->add_option("scanner", status.address, "HOST[:PORT] (port 5025 unless given)")->required();
+  status_cmd->add_option("scanner", status.address, "HOST[:PORT] (port 7878 unless given)")->required();
   status_cmd->add_option("--token-file", status.token_file, "File holding the scanner's shared token");
   status_cmd->add_flag("--json", status.json, "Print the status as JSON");
 

@@ -53,7 +53,7 @@ int run_reprocess(const ReprocessRequest& request, const Console& console);
 
 struct ScanCommand {
   std::string host = "127.0.0.1";
-  std::uint16_t port = 5025;
+  std::uint16_t port = 7878;
   std::string calibration_path;
   std::string output_dir;
   std::string config_path;

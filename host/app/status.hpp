@@ -12,9 +12,10 @@
 
 namespace slscan::app {
 
-inline constexpr std::uint16_t default_scanner_port = 5025;
+// The port every packaged board file listens on ([network] port).
+inline constexpr std::uint16_t default_scanner_port = 7878;
 
-// "HOST", "HOST:PORT", "[IPV6]:PORT" or a bare IPv6 literal -> host and port (default 5025).
+// "HOST", "HOST:PORT", "[IPV6]:PORT" or a bare IPv6 literal -> host and port (default 7878).
 // Throws std::invalid_argument naming the text for an empty host or a bad port.
 std::pair<std::string, std::uint16_t> parse_scanner_address(const std::string& text);
 

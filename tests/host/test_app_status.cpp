@@ -12,11 +12,11 @@ using ::testing::HasSubstr;
 namespace pb = slproto::pb;
 
 TEST(ScannerAddress, HostPortForms) {
-  EXPECT_EQ(parse_scanner_address("scanner.local"), std::make_pair(std::string("scanner.local"), std::uint16_t{5025}));
+  EXPECT_EQ(parse_scanner_address("scanner.local"), std::make_pair(std::string("scanner.local"), std::uint16_t{7878}));
   EXPECT_EQ(parse_scanner_address("10.0.0.7:6000"), std::make_pair(std::string("10.0.0.7"), std::uint16_t{6000}));
   EXPECT_EQ(parse_scanner_address("[fe80::1]:7000"), std::make_pair(std::string("fe80::1"), std::uint16_t{7000}));
-  EXPECT_EQ(parse_scanner_address("[::1]"), std::make_pair(std::string("::1"), std::uint16_t{5025}));
-  EXPECT_EQ(parse_scanner_address("::1"), std::make_pair(std::string("::1"), std::uint16_t{5025}));
+  EXPECT_EQ(parse_scanner_address("[::1]"), std::make_pair(std::string("::1"), std::uint16_t{7878}));
+  EXPECT_EQ(parse_scanner_address("::1"), std::make_pair(std::string("::1"), std::uint16_t{7878}));
 }
 
 TEST(ScannerAddress, BadFormsNameTheTextAndTheProblem) {
