@@ -42,8 +42,7 @@ Result<ScannerAdvert> from_txt_records(const std::vector<std::string>& records) 
       advert.software_version = value;
     } else if (key == "proto") {
       const auto dash = value.find('-');
-      if (dash == std::string::npos ||
-          !parse_u32(std::string_view(value).substr(0, dash), advert.min_protocol) ||
+      if (dash == std::string::npos || !parse_u32(std::string_view(value).substr(0, dash), advert.min_protocol) ||
           !parse_u32(std::string_view(value).substr(dash + 1), advert.max_protocol) ||
           advert.min_protocol > advert.max_protocol || advert.min_protocol == 0)
         return make_error(Errc::malformed, "TXT record '" + r + "': proto must be MIN-MAX, e.g. proto=1-2");

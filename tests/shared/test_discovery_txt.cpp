@@ -12,8 +12,8 @@ using ::testing::HasSubstr;
 TEST(DiscoveryTxt, RoundTripsEveryField) {
   ScannerAdvert advert{"rpi", "slscand 0.2.0", 1, 2, true, false};
   const auto records = to_txt_records(advert);
-  EXPECT_THAT(records, ::testing::ElementsAre("txtvers=1", "board=rpi", "version=slscand 0.2.0", "proto=1-2",
-                                              "token=1", "sim=0"));
+  EXPECT_THAT(records, ::testing::ElementsAre("txtvers=1", "board=rpi", "version=slscand 0.2.0", "proto=1-2", "token=1",
+                                              "sim=0"));
   auto back = from_txt_records(records);
   ASSERT_TRUE(back.ok()) << back.error().message;
   EXPECT_EQ(back->board, "rpi");

@@ -3,9 +3,9 @@
 // discover's browser finding it with its TXT records; and the message without a daemon.
 // Skips (77) where it cannot run: not root, no avahi-daemon/dbus-daemon, or an avahi-daemon
 // already running on this machine (one per machine: /run/avahi-daemon/pid).
+#include <fcntl.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
-#include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
@@ -151,7 +151,8 @@ TEST_F(Mdns, PublishedScannerIsDiscoveredWithItsTxtRecords) {
   if (!start_daemons(dbus, avahi, why)) GTEST_SKIP() << why;
 
   ASSERT_TRUE(wait_for([&] { return (*publisher)->state().rfind("published", 0) == 0; }, 10s))
-      << (*publisher)->state() << "\n" << read_all(dir / "avahi.log");
+      << (*publisher)->state() << "\n"
+      << read_all(dir / "avahi.log");
   EXPECT_EQ((*publisher)->state(), "published as '" + instance + "'");
 
   auto found = browse_scanners(5s);

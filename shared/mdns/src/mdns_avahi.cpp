@@ -203,9 +203,9 @@ void on_resolved(AvahiServiceResolver* r, AvahiIfIndex interface, AvahiProtocol,
     // One entry per instance and address family is enough (IPv4 and IPv6 of one board).
     bool duplicate = false;
     for (const auto& other : browse->found)
-      duplicate = duplicate || (other.instance == s.instance && other.host_name == s.host_name &&
-                                (other.address.find(':') == std::string::npos) ==
-                                    (s.address.find(':') == std::string::npos));
+      duplicate =
+          duplicate || (other.instance == s.instance && other.host_name == s.host_name &&
+                        (other.address.find(':') == std::string::npos) == (s.address.find(':') == std::string::npos));
     if (!duplicate) browse->found.push_back(std::move(s));
   }
   browse->pending--;
@@ -239,8 +239,8 @@ Result<std::vector<DiscoveredScanner>> browse_scanners(std::chrono::milliseconds
   browse.poll = avahi_simple_poll_new();
   if (browse.poll == nullptr) return make_error(Errc::internal, "mDNS: avahi_simple_poll_new failed");
   int error = 0;
-  browse.client = avahi_client_new(avahi_simple_poll_get(browse.poll), static_cast<AvahiClientFlags>(0), nullptr,
-                                   nullptr, &error);
+  browse.client =
+      avahi_client_new(avahi_simple_poll_get(browse.poll), static_cast<AvahiClientFlags>(0), nullptr, nullptr, &error);
   if (browse.client == nullptr) {
     avahi_simple_poll_free(browse.poll);
     if (error == AVAHI_ERR_NO_DAEMON)

@@ -35,11 +35,11 @@ class MdnsPublisher {
 };
 
 struct DiscoveredScanner {
-  std::string instance;  // the DNS-SD instance name
-  std::string host_name; // "raspberrypi.local"
-  std::string address;   // "192.168.1.30" or an IPv6 literal
+  std::string instance;   // the DNS-SD instance name
+  std::string host_name;  // "raspberrypi.local"
+  std::string address;    // "192.168.1.30" or an IPv6 literal
   std::uint16_t port = 0;
-  std::string interface; // "eth0"
+  std::string interface;  // "eth0"
   std::vector<std::string> txt;
 };
 
