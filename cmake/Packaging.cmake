@@ -92,6 +92,10 @@ if(CMAKE_CROSSCOMPILING)
   # soname -> package (bookworm versions, the oldest the board build was linked against).
   set(SLSCAN_CROSS_DEPENDS
       "libc6 (>= 2.36), libstdc++6 (>= 12), libgcc-s1 (>= 3.0), libprotobuf-lite32 (>= 3.21.12), libgpiod2 (>= 1.6.3), libserialport0 (>= 0.1.1)")
+  get_property(SLSCAN_HAVE_AVAHI GLOBAL PROPERTY SLSCAN_HAVE_AVAHI)
+  if(SLSCAN_HAVE_AVAHI)
+    string(APPEND SLSCAN_CROSS_DEPENDS ", libavahi-client3 (>= 0.8), libavahi-common3 (>= 0.8)")
+  endif()
   set(CPACK_DEBIAN_SLSCAND_PACKAGE_DEPENDS "${SLSCAN_CROSS_DEPENDS}")
 else()
   set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)

@@ -38,13 +38,17 @@ if [ ${#need[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need[@]}"
 fi
 
-# Everything the firmware links (protobuf-lite, libgpiod, libserialport), the header-only
+# Everything the firmware links (protobuf-lite, libgpiod, libserialport, avahi-client), the header-only
 # libraries it includes (nlohmann-json, toml++) and GoogleTest for the unit tests. libcamera
 # is left out: the cross build's camera backends are V4L2 and sim.
 packages=(libprotobuf-dev libprotobuf-lite32 libprotobuf32 zlib1g zlib1g-dev
           nlohmann-json3-dev libtomlplusplus-dev libtomlplusplus3
           libgpiod-dev libgpiod2 libserialport-dev libserialport0
-          libgtest-dev libgmock-dev)
+          libgtest-dev libgmock-dev
+          # mDNS/DNS-SD (slscand announces itself through avahi-daemon): the client library and,
+          # for the linker to resolve it, what it loads down to libc (D-Bus, libsystemd, ...)
+          libavahi-client-dev libavahi-client3 libavahi-common-dev libavahi-common3 libdbus-1-3
+          libsystemd0 libcap2 libgcrypt20 libgpg-error0 liblz4-1 liblzma5 libzstd1)
 
 stamp=$sysroot/.slscan-packages
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "${packages[*]}" ]; then

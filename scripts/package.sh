@@ -65,7 +65,8 @@ host_files=(./usr/bin/slscan ./usr/share/doc/slscan/copyright ./usr/share/doc/sl
 # soname -> Debian package, for the cross builds' declared Depends.
 declare -A soname_package=([libc.so.6]=libc6 [libm.so.6]=libc6 [ld-linux-aarch64.so.1]=libc6
   [ld-linux-armhf.so.3]=libc6 [libstdc++.so.6]=libstdc++6 [libgcc_s.so.1]=libgcc-s1
-  [libprotobuf-lite.so.32]=libprotobuf-lite32 [libgpiod.so.2]=libgpiod2 [libserialport.so.0]=libserialport0)
+  [libprotobuf-lite.so.32]=libprotobuf-lite32 [libgpiod.so.2]=libgpiod2 [libserialport.so.0]=libserialport0
+  [libavahi-client.so.3]=libavahi-client3 [libavahi-common.so.3]=libavahi-common3)
 
 check_deb() {  # file, package, architecture, expected files...
   local deb=$1 package=$2 arch=$3

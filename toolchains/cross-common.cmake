@@ -25,7 +25,10 @@ set(CMAKE_FIND_ROOT_PATH_MODE_PACKAGE ONLY)
 set(CMAKE_LIBRARY_ARCHITECTURE ${SLSCAN_CROSS_TRIPLET})
 set(CMAKE_C_FLAGS_INIT "-isystem ${SLSCAN_SYSROOT}/usr/include/${SLSCAN_CROSS_TRIPLET} -isystem ${SLSCAN_SYSROOT}/usr/include")
 set(CMAKE_CXX_FLAGS_INIT "-isystem ${SLSCAN_SYSROOT}/usr/include/${SLSCAN_CROSS_TRIPLET} -isystem ${SLSCAN_SYSROOT}/usr/include")
-# Shared libraries' own dependencies (libprotobuf-lite -> zlib) are found through rpath-link.
+# Shared libraries' own dependencies (libprotobuf-lite -> zlib) are found through rpath-link;
+# the ones bookworm still ships in /lib/<triplet> (libdbus, libcap) get theirs in the top-level
+# CMakeLists.txt (these *_INIT flags only reach a build directory's first configure).
+set(_rootlibdir ${SLSCAN_SYSROOT}/lib/${SLSCAN_CROSS_TRIPLET})
 set(CMAKE_EXE_LINKER_FLAGS_INIT "-L${_libdir} -Wl,-rpath-link,${_libdir}")
 set(CMAKE_SHARED_LINKER_FLAGS_INIT "-L${_libdir} -Wl,-rpath-link,${_libdir}")
 
@@ -37,5 +40,5 @@ set(ENV{PKG_CONFIG_SYSROOT_DIR} ${SLSCAN_SYSROOT})
 # sysroot's libraries through the target's LD_LIBRARY_PATH.
 find_program(SLSCAN_QEMU ${SLSCAN_CROSS_QEMU})
 if(SLSCAN_QEMU)
-  set(CMAKE_CROSSCOMPILING_EMULATOR ${SLSCAN_QEMU} -L /usr/${SLSCAN_CROSS_TRIPLET} -E LD_LIBRARY_PATH=${_libdir})
+  set(CMAKE_CROSSCOMPILING_EMULATOR ${SLSCAN_QEMU} -L /usr/${SLSCAN_CROSS_TRIPLET} -E LD_LIBRARY_PATH=${_libdir}:${_rootlibdir})
 endif()
