@@ -239,3 +239,31 @@ TEST(HilBoardBudget, BudgetAndObserverSectionsAreCheckedByName) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST(HilBoardBudget, ShippedBoardsCarryTheirBudgetsAndObserverWiring) {
+  auto rpi = slscand::hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/rpi.toml");
+  ASSERT_TRUE(rpi.ok()) << rpi.error().message;
+  EXPECT_EQ(rpi->observer.chip, "pinctrl-bcm2711");
+  ASSERT_TRUE(rpi->observer.left_trig_in_1 && rpi->observer.right_trig_out_1);
+  // An observer input must not be one of the lines it watches (or any other board line).
+  for (const auto& line : {rpi->observer.left_trig_in_1, rpi->observer.left_trig_out_1, rpi->observer.right_trig_in_1,
+                           rpi->observer.right_trig_out_1}) {
+    for (const auto& p : rpi->projectors) {
+      EXPECT_NE(*line, p.trig_in_1);
+      EXPECT_NE(*line, p.trig_in_2);
+      EXPECT_NE(*line, p.trig_out_1);
+    }
+  }
+  EXPECT_LT(rpi->budget.period_jitter_p99_us, 100);
+  auto vm = slscand::hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/qemu-vm.toml");
+  ASSERT_TRUE(vm.ok()) << vm.error().message;
+  EXPECT_EQ(vm->gpio_backend, "gpiod");
+  EXPECT_EQ(vm->serial_port, "/dev/ttyS1");
+  auto bbb = slscand::hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/beaglebone-black.toml");
+  ASSERT_TRUE(bbb.ok()) << bbb.error().message;
+  EXPECT_TRUE(bbb->observer.chip.empty());
+}
+
+}  // namespace
