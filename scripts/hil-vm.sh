@@ -7,6 +7,7 @@
 # Environment: SLSCAN_HIL_CACHE (default build/hil-vm-cache: kernel packages, gpio-sim module,
 # static build), SLSCAN_HIL_ABI (the kernel ABI, default 57 = what bookworm offers now).
 set -euo pipefail
+export PATH=$PATH:/usr/sbin:/sbin  # depmod
 
 root=$(cd "$(dirname "$0")/.." && pwd)
 abi=${SLSCAN_HIL_ABI:-57}
@@ -34,7 +35,7 @@ headers=/usr/src/linux-headers-$kver
 # 1. Kernel image and modules, and the kernel source for gpio-sim (cached).
 mkdir -p "$cache"
 (cd "$cache" && for pkg in "linux-image-$kver" linux-source-6.1; do
-  ls "$pkg"_*.deb >/dev/null 2>&1 || apt-get download "$pkg" >/dev/null
+  ls "$pkg"_*.deb >/dev/null 2>&1 || apt-get download "$pkg" >/dev/null 2>&1 || { echo "hil-vm: cannot download $pkg"; exit 2; }
 done)
 if [ ! -f "$cache/image/boot/vmlinuz-$kver" ]; then
   say "unpacking linux-image-$kver"
