@@ -69,17 +69,18 @@ if [ ! -f "$gpio_sim" ]; then
 fi
 
 # 3. slscand's backends and the guest checker, statically linked (no libcamera, no host code).
-if [ ! -x "$static_build/tests/hil/slscan_hil_vm_check" ] || [ -n "$(find "$root/firmware" "$root/shared" "$root/tests/hil" -newer "$static_build/tests/hil/slscan_hil_vm_check" -name '*.[ch]pp' -print -quit)" ]; then
-  say "static build of the firmware backends"
+if [ ! -f "$static_build/CMakeCache.txt" ]; then
+  say "configuring the static build of the firmware backends"
   # The platform files set the library suffixes after the command line, so set them after
   # project(): every find_library (pkg-config's imported targets too) then takes the .a.
   echo 'set(CMAKE_FIND_LIBRARY_SUFFIXES .a)' >"$cache/static.cmake"
-  cmake -S "$root" -B "$static_build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSLSCAN_WERROR=ON -DSLSCAN_BUILD_HOST=OFF \
-    -DSLSCAN_BUILD_BENCH=OFF -DSLSCAND_LIBCAMERA=OFF -DCMAKE_EXE_LINKER_FLAGS=-static -DCMAKE_PROJECT_INCLUDE="$cache/static.cmake" >"$work/cmake.log" 2>&1 ||
-    { cat "$work/cmake.log"; exit 1; }
-  cmake --build "$static_build" -j2 --target slscan_hil_vm_check slscand >"$work/build.log" 2>&1 ||
-    { tail -40 "$work/build.log"; exit 1; }
+  cmake -S "$root" -B "$static_build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSLSCAN_WERROR=ON \
+    -DSLSCAN_BUILD_HOST=OFF -DSLSCAN_BUILD_BENCH=OFF -DSLSCAND_LIBCAMERA=OFF -DCMAKE_EXE_LINKER_FLAGS=-static \
+    -DCMAKE_PROJECT_INCLUDE="$cache/static.cmake" >"$work/cmake.log" 2>&1 || { cat "$work/cmake.log"; exit 1; }
 fi
+# A no-op when nothing changed.
+cmake --build "$static_build" -j2 --target slscan_hil_vm_check slscan_hil slscand >"$work/build.log" 2>&1 ||
+  { tail -40 "$work/build.log"; exit 1; }
 cmake --build "$root/build/dev" --target slscan_hil_uart_bridge >/dev/null 2>&1 ||
   cmake --build "$static_build" --target slscan_hil_uart_bridge >/dev/null
 bridge=$root/build/dev/tests/hil/slscan_hil_uart_bridge
@@ -90,7 +91,8 @@ init=$work/initramfs
 mkdir -p "$init"/{bin,sbin,dev,proc,sys,tmp,modules,boards}
 cp /bin/busybox "$init/bin/"
 for applet in sh mount mkdir echo cat insmod sleep poweroff ls; do ln -s busybox "$init/bin/$applet"; done
-cp "$static_build/tests/hil/slscan_hil_vm_check" "$static_build/firmware/app/slscand" "$init/bin/"
+cp "$static_build/tests/hil/slscan_hil_vm_check" "$static_build/tests/hil/slscan_hil" "$static_build/firmware/app/slscand" \
+  "$init/bin/"
 cp "$root/boards/qemu-vm.toml" "$init/boards/"
 cp "$gpio_sim" "$init/modules/"
 deps() {  # the module and what it needs, dependencies first
@@ -121,6 +123,19 @@ chip=$(ls -d /sys/devices/platform/gpio-sim.*/gpiochip* 2>/dev/null | head -n 1)
 [ -n "$chip" ] && echo "HIL-CHECK gpio-sim ok $chip" || echo "HIL-CHECK gpio-sim FAIL no chip"
 [ -e /dev/video0 ] && echo "HIL-CHECK vivid ok /dev/video0" || echo "HIL-CHECK vivid FAIL no /dev/video0"
 echo "HIL-CHECK slscand ok $(slscand --list-backends)"
+# slscand itself, launched by the harness as on a bench: it opens every device through the board
+# file (gpio-sim by label, its projector lines requested), then vivid, which has no manual
+# exposure control: slscand must refuse to start, naming the device and the missing control,
+# the harness must report that it could not run the scan (exit 3), and no line may stay high.
+slscan_hil --board /boards/qemu-vm.toml --slscand /bin/slscand --views 1 --no-timing --no-realtime \
+  --out /tmp/hil >/tmp/hil.out 2>&1
+rc=$?
+sed 's/^/guest: /' /tmp/hil.out
+grep -q "cannot open the board's devices: /dev/video0: the camera has no manual exposure control" /tmp/hil.out &&
+  grep -q "slscand exited before listening (exit code 1)" /tmp/hil.out && [ $rc -eq 3 ] &&
+  echo "HIL-CHECK slscand.vivid refused ok" || echo "HIL-CHECK slscand.vivid refused FAIL exit $rc"
+v=""; for l in 0 1 3 4; do v="$v$(cat $chip/sim_gpio$l/value)"; done
+[ "$v" = "0000" ] && echo "HIL-CHECK slscand.lines low ok" || echo "HIL-CHECK slscand.lines low FAIL $v"
 slscan_hil_vm_check --board /boards/qemu-vm.toml --sysfs-chip "$chip"
 poweroff -f
 EOF
@@ -141,7 +156,7 @@ timeout 300 qemu-system-x86_64 -accel tcg -m 512 -smp 1 -nographic -no-reboot \
 wait "$bridge_pid" 2>/dev/null || true
 bridge_pid=
 
-grep -E "^HIL-" "$work/console.log" | tr -d '\r' || true
+grep -E "^(HIL-|guest: )" "$work/console.log" | tr -d '\r' || true
 grep -E "^UART> " "$work/bridge.log" | sed 's/^/host: /' | head -12
 grep -E "^BRIDGE lines" "$work/bridge.log" | sed 's/^/host: /' 
 failed=0
