@@ -327,6 +327,15 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
   }
 
   constexpr std::uint64_t kScanId = 1;
+  // A log left by an earlier scan with the same id must not pass for this one's.
+  const std::string log_path = log_dir + "/scan-" + std::to_string(kScanId) + "-timing.csv";
+  const std::string edges_path = log_dir + "/scan-" + std::to_string(kScanId) + "-edges.csv";
+  const auto requested_at = std::filesystem::file_time_type::clock::now();
+  auto fresh = [&](const std::string& path) {
+    std::error_code stat_error;
+    const auto written = std::filesystem::last_write_time(path, stat_error);
+    return !stat_error && written >= requested_at - 2s;  // coarse file-system clocks
+  };
   pb::ScanRequest request;
   request.set_scan_id(kScanId);
   for (long v = 0; v < o.views; ++v) request.add_turntable_angles_deg(60.0 * static_cast<double>(v));
@@ -384,7 +393,11 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
   gpiod_observer.stop();
 
   // slscand writes its log before it sends ScanDone.
-  const std::string log_path = log_dir + "/scan-" + std::to_string(kScanId) + "-timing.csv";
+  if (!fresh(log_path)) {
+    std::fprintf(stderr, "slscan_hil: %s was not written by this scan (is slscand running with --timing-log %s?)\n",
+                 log_path.c_str(), log_dir.c_str());
+    return 3;
+  }
   auto log_text = slscan::hil::read_text_file(log_path);
   if (!log_text) {
     std::fprintf(stderr, "slscan_hil: no timing log: %s (is slscand running with --timing-log %s?)\n",
@@ -398,7 +411,10 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
   }
   record.log = std::move(*log);
   if (sim_observer) {
-    const std::string edges_path = log_dir + "/scan-" + std::to_string(kScanId) + "-edges.csv";
+    if (!fresh(edges_path)) {
+      std::fprintf(stderr, "slscan_hil: %s was not written by this scan\n", edges_path.c_str());
+      return 3;
+    }
     auto edges_text = slscan::hil::read_text_file(edges_path);
     if (!edges_text) {
       std::fprintf(stderr, "slscan_hil: the sim bus's edge record is missing: %s\n",

@@ -212,7 +212,7 @@ TEST(HilBoardBudget, BudgetAndObserverSectionsAreCheckedByName) {
   ASSERT_TRUE(text.ok());
   auto board = slscand::hal::parse_board(*text, "sim.toml");
   ASSERT_TRUE(board.ok()) << board.error().message;
-  EXPECT_DOUBLE_EQ(board->budget.scan_time_ratio_max, 3.0);
+  EXPECT_DOUBLE_EQ(board->budget.scan_time_ratio_max, 15.0);
 
   const auto at = text->find("[timing_budget]\n") + std::string("[timing_budget]\n").size();
   std::string negative_text = *text;
