@@ -34,6 +34,7 @@
 #include <thread>
 #include <vector>
 
+#include "gpiod_observer.hpp"
 #include "hil_check.hpp"
 #include "hil_record.hpp"
 #include "slproto/calibration.hpp"
@@ -41,9 +42,6 @@
 #include "slproto/pattern_plan.hpp"
 #include "slproto/transport.hpp"
 #include "slscand/hal/board.hpp"
-#if defined(SLSCAND_HAVE_GPIOD)
-#include "slscand/hal/gpiod/gpiod_chip.hpp"
-#endif
 
 extern char** environ;
 
@@ -153,92 +151,6 @@ class Daemon {
   int out_fd_ = -1;
 };
 
-// libgpiod edge events on the board's [observer] inputs, mapped back to the lines they watch.
-class GpiodObserver {
- public:
-  ~GpiodObserver() { stop(); }
-  bool start(const slscand::hal::BoardConfig& board, std::string& error) {
-#if defined(SLSCAND_HAVE_GPIOD)
-    auto chip = slscand::hal::open_gpiod_chip(board.observer.chip);
-    if (!chip) {
-      error = "observer: " + chip.error().message;
-      return false;
-    }
-    chip_ = std::move(*chip);
-    slscand::hal::LineRequestConfig config;
-    config.consumer = "slscan_hil observer";
-    const auto& o = board.observer;
-    const char* names[4] = {"observer.left_trig_in_1", "observer.left_trig_out_1", "observer.right_trig_in_1",
-                            "observer.right_trig_out_1"};
-    const std::optional<unsigned> inputs[4] = {o.left_trig_in_1, o.left_trig_out_1, o.right_trig_in_1,
-                                               o.right_trig_out_1};
-    const unsigned watched[4] = {board.projectors[0].trig_in_1, board.projectors[0].trig_out_1,
-                                 board.projectors[1].trig_in_1, board.projectors[1].trig_out_1};
-    for (int i = 0; i < 4; ++i) {
-      if (!inputs[i]) continue;
-      config.lines.push_back(
-          {*inputs[i], slscand::hal::LineDirection::input, false, slscand::hal::EdgeDetection::both, false, names[i]});
-      map_.emplace_back(*inputs[i], watched[i]);
-    }
-    auto request = chip_->request_lines(config);
-    if (!request) {
-      error = "observer: " + request.error().message;
-      return false;
-    }
-    request_ = std::move(*request);
-    thread_ = std::thread([this] { run(); });
-    return true;
-#else
-    (void)board;
-    error = "observer: this slscan_hil was built without libgpiod";
-    return false;
-#endif
-  }
-  void stop() {
-    quit_ = true;
-    if (thread_.joinable()) thread_.join();
-  }
-  std::vector<slscan::hil::Edge> edges() {
-    std::lock_guard lock(mutex_);
-    return edges_;
-  }
-  std::string error() {
-    std::lock_guard lock(mutex_);
-    return error_;
-  }
-
- private:
-  void run() {
-    std::uint64_t last_seqno = 0;
-    while (!quit_) {
-      auto events = request_->wait_edges(50 * 1'000'000);
-      std::lock_guard lock(mutex_);
-      if (!events) {
-        error_ = events.error().message;
-        return;
-      }
-      for (const auto& e : *events) {
-        // A seqno gap is the kernel's event buffer overflowing: edges were lost to the observer.
-        if (last_seqno != 0 && e.seqno != last_seqno + 1 && error_.empty()) {
-          error_ = "the kernel dropped " + std::to_string(e.seqno - last_seqno - 1) + " edge events";
-        }
-        last_seqno = e.seqno;
-        for (const auto& [input, watched] : map_) {
-          if (input == e.offset) edges_.push_back({watched, e.rising, e.timestamp_ns});
-        }
-      }
-    }
-  }
-  std::unique_ptr<slscand::hal::GpioChip> chip_;
-  std::unique_ptr<slscand::hal::LineRequest> request_;
-  std::vector<std::pair<unsigned, unsigned>> map_;
-  std::thread thread_;
-  std::atomic<bool> quit_{false};
-  std::mutex mutex_;
-  std::vector<slscan::hil::Edge> edges_;
-  std::string error_;
-};
-
 int report(const slscan::hil::HilRecord& record, const slscand::hal::BoardConfig& board, const Options& o) {
   slscan::hil::CheckOptions check_options;
   check_options.timing = o.timing;
@@ -302,7 +214,7 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
     port = static_cast<std::uint16_t>(p);
   }
 
-  GpiodObserver gpiod_observer;
+  slscan::hil::GpiodObserver gpiod_observer;
   const bool sim_observer = board.is_sim();
   bool gpiod_observing = false;
   if (!sim_observer && !board.observer.chip.empty()) {

@@ -11,11 +11,14 @@
 // no loopback between lines, so this program plays the DLP: it answers each TRIG_IN_1 pulse it
 // reads back through sysfs with a TRIG_OUT_1 pulse (pull), which the projector code must see
 // as an edge event.
+#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <string>
+#include <thread>
 
+#include "gpiod_observer.hpp"
 #include "slscand/hal/board.hpp"
 #include "slscand/hal/gpiod/gpiod_chip.hpp"
 #include "slscand/hal/projector.hpp"
@@ -114,6 +117,54 @@ void check_gpio(const hal::BoardConfig& board, const std::string& chip_dir) {
     report(name + ".stop leaves lines low", stopped.ok() && in1 == 0 && in2 == 0,
            "trig_in_1=" + std::to_string(in1) + " trig_in_2=" + std::to_string(in2));
   }
+}
+
+// slscan_hil's real-board observer on real edge events: the test drives the [observer] inputs
+// with gpio-sim's pull, as wired-back trigger lines would, and the observer must record each
+// edge, in order, under the board line it watches.
+void check_observer(const hal::BoardConfig& board, const std::string& chip_dir) {
+  const auto& o = board.observer;
+  if (!o.left_trig_in_1 || !o.right_trig_out_1) {
+    report("observer.lines", false, "the VM board needs observer.left_trig_in_1 and observer.right_trig_out_1");
+    return;
+  }
+  (void)write_pull(chip_dir, *o.left_trig_in_1, false);
+  (void)write_pull(chip_dir, *o.right_trig_out_1, false);
+  slscan::hil::GpiodObserver observer;
+  std::string error;
+  const bool started = observer.start(board, error);
+  report("observer.start", started, error);
+  if (!started) return;
+  auto drive = [&](unsigned line, bool up) {
+    (void)write_pull(chip_dir, line, up);
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  };
+  for (int pulse = 0; pulse < 3; ++pulse) {  // three triggers on the left TRIG_IN_1 ...
+    drive(*o.left_trig_in_1, true);
+    drive(*o.left_trig_in_1, false);
+  }
+  drive(*o.right_trig_out_1, true);  // ... and one exposure pulse on the right TRIG_OUT_1
+  drive(*o.right_trig_out_1, false);
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  observer.stop();
+  const auto edges = observer.edges();
+  std::string problem = observer.error();
+  int left = 0, right = 0;
+  for (std::size_t i = 0; i < edges.size() && problem.empty(); ++i) {
+    const auto& e = edges[i];
+    int& n = e.offset == board.projectors[0].trig_in_1 ? left : right;
+    if (e.offset != board.projectors[0].trig_in_1 && e.offset != board.projectors[1].trig_out_1) {
+      problem = "edge recorded under line " + std::to_string(e.offset);
+    } else if (e.rising != (n % 2 == 0)) {
+      problem = "edge " + std::to_string(i) + " on line " + std::to_string(e.offset) + " has the wrong direction";
+    } else if (i > 0 && e.ns <= edges[i - 1].ns) {
+      problem = "edge " + std::to_string(i) + " is not later than the one before";
+    }
+    n++;
+  }
+  report("observer.edges", problem.empty() && left == 6 && right == 2,
+         std::to_string(left) + " edges on projector.left.trig_in_1 (want 6), " + std::to_string(right) +
+             " on projector.right.trig_out_1 (want 2)" + (problem.empty() ? "" : ": " + problem));
 }
 
 void check_camera(const hal::BoardConfig& board) {
@@ -220,6 +271,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   check_gpio(*board, chip_dir);
+  check_observer(*board, chip_dir);
   check_camera(*board);
   check_turntable(*board);
   std::printf("HIL-DONE %d\n", failures);
