@@ -46,7 +46,12 @@ packages=(
   # the discovery test), Debian packages and their checks (scripts/package.sh)
   libavahi-client-dev avahi-daemon dbus
   dpkg-dev fakeroot systemd lintian
+  # HIL in a VM (scripts/hil-vm.sh): qemu, a static busybox for the initramfs, depmod
+  qemu-system-x86 busybox-static cpio kmod
 )
+# The headers gpio-sim is built against; the ABI (57) must match SLSCAN_HIL_ABI in
+# scripts/hil-vm.sh. Optional: when the mirror has moved on, only the VM test is affected.
+hil_headers=linux-headers-6.1.0-${SLSCAN_HIL_ABI:-57}-amd64
 
 stamp=/var/lib/slscan-bootstrap.stamp
 want="$(printf '%s\n' "${packages[@]}" | sort | tr '\n' ' ')"
@@ -60,6 +65,10 @@ else
   $SUDO apt-get install -y -qq --no-install-recommends -t bookworm-backports libcamera-dev || \
     echo "bootstrap: libcamera-dev from bookworm-backports not available; the libcamera backend will be skipped"
   echo "$want" | $SUDO tee "$stamp" >/dev/null
+fi
+if ! dpkg -s "$hil_headers" >/dev/null 2>&1; then
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "$hil_headers" || \
+    echo "bootstrap: $hil_headers not available; scripts/hil-vm.sh (HIL in a VM) will not run"
 fi
 
 # report.html's 3D viewer is bundled at build time from npm packages (three, esbuild) pinned by

@@ -58,6 +58,14 @@ if [ "${SLSCAN_SKIP_PACKAGE:-0}" != 1 ]; then
 fi
 # ---- END packages
 
+# ---- HIL in a VM (scripts/hil-vm.sh, docs/hil.md): slscand's libgpiod, V4L2 and libserialport
+# backends on gpio-sim, vivid and a UART in qemu (TCG); ~30 s warm. SLSCAN_SKIP_HILVM=1 skips.
+if [ "${SLSCAN_SKIP_HILVM:-0}" != 1 ]; then
+  step "HIL in a VM"
+  scripts/hil-vm.sh
+fi
+# ---- end HIL in a VM
+
 if [ "${SLSCAN_SKIP_FUZZ:-0}" != 1 ] && [ -d tests/fuzz ]; then
   step "fuzz smoke (libFuzzer, clang-14)"
   scripts/fuzz.sh "${SLSCAN_FUZZ_SECONDS:-20}"

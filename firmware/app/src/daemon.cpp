@@ -6,6 +6,9 @@
 #include "slproto/calibration.hpp"
 #include "slproto/handshake.hpp"
 #include "slscand/sequencer/realtime.hpp"
+#if defined(SLSCAND_HAVE_SIM)
+#include "slscand/hal/sim/sim_rig.hpp"
+#endif
 
 namespace slscand {
 
@@ -244,6 +247,10 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
     stats_.scans_started++;
   }
   scanning_ = true;
+#if defined(SLSCAND_HAVE_SIM)
+  // The bus's edge record goes out with this scan's timing log: start it empty.
+  if (devices_.sim_rig && !options_.timing_log_dir.empty()) devices_.sim_rig->clear_records();
+#endif
 
   BoundedQueue<SequencedFrame> queue(options_.queue_capacity);
   std::atomic<bool> abort{false};
@@ -394,6 +401,20 @@ void Daemon::write_timing_log(const ScanPlan& plan, const ScanOutcome& outcome, 
   if (auto s = slproto::write_file_atomically(path, text); !s) {
     std::fprintf(stderr, "slscand: warning: cannot write the timing log: %s\n", s.error().message.c_str());
   }
+#if defined(SLSCAND_HAVE_SIM)
+  // The virtual bus's own record of the edges it carried, as a logic analyser on the trigger
+  // lines would capture them: the HIL harness (tests/hil) checks the log above against it.
+  if (devices_.sim_rig) {
+    std::string edges = "# slscand sim GPIO bus edges: offset,rising,monotonic_ns\n";
+    for (const auto& e : devices_.sim_rig->recorded_edges()) {
+      edges += std::to_string(e.offset) + "," + (e.rising ? "1" : "0") + "," + std::to_string(e.timestamp_ns) + "\n";
+    }
+    const std::string edges_path = options_.timing_log_dir + "/scan-" + std::to_string(plan.scan_id) + "-edges.csv";
+    if (auto s = slproto::write_file_atomically(edges_path, edges); !s) {
+      std::fprintf(stderr, "slscand: warning: cannot write the GPIO edge record: %s\n", s.error().message.c_str());
+    }
+  }
+#endif
 }
 
 }  // namespace slscand

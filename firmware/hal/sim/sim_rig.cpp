@@ -14,6 +14,8 @@
 #include <optional>
 #include <thread>
 
+#include "slscand/hal/priority_inheritance_mutex.hpp"
+
 namespace slscand::hal::sim {
 
 using slproto::Errc;
@@ -60,10 +62,12 @@ struct SimRig::Core {
   slrig::Scene scene;
   std::unique_ptr<TurntableEmulator> table;
 
-  std::mutex mutex;  // guards all state below
-  std::condition_variable scheduler_cv;
-  std::condition_variable edges_cv;
-  std::condition_variable camera_cv;
+  // Guards all state below. Taken by the real-time sequencer (line writes, frame waits) and by
+  // the normal-priority renderer, hence priority inheritance.
+  PriorityInheritanceMutex mutex;
+  std::condition_variable_any scheduler_cv;
+  std::condition_variable_any edges_cv;
+  std::condition_variable_any camera_cv;
   bool quit = false;
 
   // Scheduler: device reactions due at a monotonic time, in order.

@@ -202,7 +202,8 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   BoardConfig b;
   b.source_path = source_name;
 
-  r.only_keys("", {"board", "network", "gpio", "projector", "camera", "timing", "turntable", "realtime", "sim"});
+  r.only_keys("", {"board", "network", "gpio", "projector", "camera", "timing", "turntable", "realtime", "sim",
+                   "timing_budget", "observer"});
   r.only_keys("board", {"name", "description"});
   r.only_keys("network", {"bind_address", "port"});
   r.only_keys("gpio", {"backend", "chip"});
@@ -215,6 +216,11 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
                          "move_timeout_s"});
   r.only_keys("turntable", {"backend", "serial", "port", "baud", "feed_deg_per_min", "angle_tolerance_deg"});
   r.only_keys("realtime", {"enabled", "priority", "cpu"});
+  r.only_keys("timing_budget",
+              {"period_mean_error_us", "period_jitter_p50_us", "period_jitter_p99_us", "period_jitter_max_us",
+               "trigger_to_exposure_max_us", "exposure_error_max_us", "frame_delivery_p99_us", "frame_delivery_max_us",
+               "move_settle_max_ms", "scan_time_ratio_max", "observer_tolerance_us"});
+  r.only_keys("observer", {"chip", "left_trig_in_1", "left_trig_out_1", "right_trig_in_1", "right_trig_out_1"});
   r.only_keys("sim", {"scene", "rig_size", "projector_latency_us", "camera_latency_us"});
 
   r.required("board.name", b.name);
@@ -280,6 +286,36 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.optional("sim.rig_size", b.sim_rig_size);
   r.optional("sim.projector_latency_us", b.sim_projector_latency_us);
   r.optional("sim.camera_latency_us", b.sim_camera_latency_us);
+  TimingBudget& t = b.budget;
+  for (const auto& [key, field] : {std::pair{"period_mean_error_us", &t.period_mean_error_us},
+                                   std::pair{"period_jitter_p50_us", &t.period_jitter_p50_us},
+                                   std::pair{"period_jitter_p99_us", &t.period_jitter_p99_us},
+                                   std::pair{"period_jitter_max_us", &t.period_jitter_max_us},
+                                   std::pair{"trigger_to_exposure_max_us", &t.trigger_to_exposure_max_us},
+                                   std::pair{"exposure_error_max_us", &t.exposure_error_max_us},
+                                   std::pair{"frame_delivery_p99_us", &t.frame_delivery_p99_us},
+                                   std::pair{"frame_delivery_max_us", &t.frame_delivery_max_us},
+                                   std::pair{"move_settle_max_ms", &t.move_settle_max_ms},
+                                   std::pair{"scan_time_ratio_max", &t.scan_time_ratio_max},
+                                   std::pair{"observer_tolerance_us", &t.observer_tolerance_us}}) {
+    r.optional(std::string("timing_budget.") + key, *field);
+    if (!r.failed() && !(*field >= 0)) r.fail(std::string("field 'timing_budget.") + key + "' must not be negative");
+  }
+  r.optional("observer.chip", b.observer.chip);
+  for (const auto& [key, field] : {std::pair{"left_trig_in_1", &b.observer.left_trig_in_1},
+                                   std::pair{"left_trig_out_1", &b.observer.left_trig_out_1},
+                                   std::pair{"right_trig_in_1", &b.observer.right_trig_in_1},
+                                   std::pair{"right_trig_out_1", &b.observer.right_trig_out_1}}) {
+    if (r.node(std::string("observer.") + key) == nullptr) continue;
+    unsigned line = 0;
+    r.required(std::string("observer.") + key, line);
+    *field = line;
+  }
+  if (!r.failed() && b.observer.chip.empty() &&
+      (b.observer.left_trig_in_1 || b.observer.left_trig_out_1 || b.observer.right_trig_in_1 ||
+       b.observer.right_trig_out_1)) {
+    r.fail("observer lines are set but observer.chip is not");
+  }
   if (r.failed()) return r.error();
   if (auto s = b.check(); !s) return s.error();
   return b;

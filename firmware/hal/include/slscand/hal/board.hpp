@@ -14,6 +14,31 @@
 
 namespace slscand::hal {
 
+// [timing_budget]: what the hardware-in-the-loop harness (tests/hil, docs/hil.md) accepts from
+// a scan on this board. slscand itself does not enforce it. The defaults suit a real board with
+// a SCHED_FIFO sequencer; the sim board sets looser limits because it shares a loaded machine.
+struct TimingBudget {
+  double period_mean_error_us = 20;         // |mean trigger-to-trigger period - nominal|
+  double period_jitter_p50_us = 20;         // |period - nominal|, median
+  double period_jitter_p99_us = 100;        // ... 99th percentile
+  double period_jitter_max_us = 500;        // ... worst
+  double trigger_to_exposure_max_us = 200;  // TRIG_IN_1 driven -> camera exposure start, worst
+  double exposure_error_max_us = 50;        // |exposure length - requested|, worst
+  double frame_delivery_p99_us = 20'000;    // exposure end -> frame dequeued, 99th percentile
+  double frame_delivery_max_us = 50'000;    // ... worst
+  double move_settle_max_ms = 5'000;        // turntable move start -> settled, per view, worst
+  double scan_time_ratio_max = 1.5;         // scan time / (frames x period + measured moves)
+  double observer_tolerance_us = 200;       // sequencer log vs observer edge, worst disagreement
+};
+
+// [observer] (real boards): GPIO inputs wired back from the trigger outputs, on which the HIL
+// harness records edges with kernel timestamps, independently of the sequencer's own log. An
+// unset line is not observed. The sim board needs none: its virtual bus records every edge.
+struct ObserverLines {
+  std::string chip;  // "" = no observer wiring
+  std::optional<unsigned> left_trig_in_1, left_trig_out_1, right_trig_in_1, right_trig_out_1;
+};
+
 enum class CameraTriggerSource : std::uint8_t {
   projector,  // the projectors' TRIG_OUT_1 are wired (ORed) to the camera trigger input
   gpio,       // the board drives the camera trigger from its own GPIO line
@@ -70,6 +95,10 @@ struct BoardConfig {
   std::string sim_rig_size = "small";    // "small" (640 x 512) or "full"
   double sim_projector_latency_us = 15;  // TRIG_IN_1 -> TRIG_OUT_1
   double sim_camera_latency_us = 5;      // trigger edge -> exposure start
+
+  // [timing_budget], [observer] (the HIL harness's; see TimingBudget)
+  TimingBudget budget;
+  ObserverLines observer;
 
   bool is_sim() const { return gpio_backend == "sim"; }
   // Cross-field checks (loading runs them; a board built in code should too).

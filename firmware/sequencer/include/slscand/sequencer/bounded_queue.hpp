@@ -10,6 +10,8 @@
 #include <mutex>
 #include <optional>
 
+#include "slscand/hal/priority_inheritance_mutex.hpp"
+
 namespace slscand {
 
 template <class T>
@@ -65,9 +67,10 @@ class BoundedQueue {
   std::size_t capacity() const { return capacity_; }
 
  private:
-  mutable std::mutex mutex_;
-  std::condition_variable not_empty_;
-  std::condition_variable not_full_;
+  // The sequencer pushes at real-time priority, the streamer pops at normal priority.
+  mutable PriorityInheritanceMutex mutex_;
+  std::condition_variable_any not_empty_;
+  std::condition_variable_any not_full_;
   std::deque<T> items_;
   std::size_t capacity_;
   std::size_t high_water_ = 0;
