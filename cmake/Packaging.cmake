@@ -8,8 +8,10 @@
 set(SLSCAN_PACKAGING_DIR ${PROJECT_SOURCE_DIR}/packaging)
 
 # Board side: installed under the prefix (/usr) except what Debian wants at fixed places.
-install(DIRECTORY ${PROJECT_SOURCE_DIR}/boards/ DESTINATION share/slscan/boards COMPONENT slscand
-        FILES_MATCHING PATTERN "*.toml")
+# The boards a person installs on; not the test-only ones (qemu-vm.toml is the HIL VM's).
+install(FILES ${PROJECT_SOURCE_DIR}/boards/rpi.toml ${PROJECT_SOURCE_DIR}/boards/beaglebone-black.toml
+              ${PROJECT_SOURCE_DIR}/boards/sim.toml
+        DESTINATION share/slscan/boards COMPONENT slscand)
 install(FILES ${SLSCAN_PACKAGING_DIR}/slscand.service DESTINATION /lib/systemd/system COMPONENT slscand)
 install(FILES ${SLSCAN_PACKAGING_DIR}/60-slscan.rules DESTINATION /lib/udev/rules.d COMPONENT slscand)
 install(FILES ${SLSCAN_PACKAGING_DIR}/slscand.toml DESTINATION /etc/slscan COMPONENT slscand)

@@ -82,6 +82,7 @@ check_deb() {  # file, package, architecture, expected files...
   for f in "$@"; do
     grep -qxF "$f" <<<"$contents" || fail "$deb: $f is missing"
   done
+  if grep -q 'qemu-vm.toml' <<<"$contents"; then fail "$deb: ships the HIL VM's test board"; fi
   if grep -v '^\./\(usr\|etc\|lib\)/' <<<"$contents" | grep -qv '^\./$'; then
     fail "$deb: files outside /usr, /etc, /lib: $(grep -v '^\./\(usr\|etc\|lib\)/' <<<"$contents" | grep -v '^\./$')"
   fi
