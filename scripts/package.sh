@@ -7,7 +7,9 @@
 #      of slscand covered by Depends), conffiles, maintainer scripts, the expected files;
 #   4. dpkg -x of the amd64 packages into a scratch root: the files, slscand --check on the
 #      packaged sim board with the packaged configuration, slscan runs, every library resolves;
-#   5. systemd-analyze verify of the unit inside the scratch root (ExecStart resolved there);
+#   5. the maintainer scripts (install, upgrade, remove, purge) in a private mount namespace
+#      (scripts/package-maintscripts-test.sh: /etc and /var/lib are throw-away copies);
+#      systemd-analyze verify of the unit inside the scratch root (ExecStart resolved there);
 #   6. lintian: errors fail, warnings are printed.
 # Usage: scripts/package.sh [native build dir]   (SLSCAN_PACKAGE_REQUIRE_ARM64=1: fail without
 #        the arm64 cross build instead of skipping it; the CI block sets it unless cross is off)
@@ -142,6 +144,19 @@ check_out=$("$root/usr/bin/slscand" --config "$root/etc/slscan/slscand.toml" \
   { echo "$check_out"; fail "slscand --check on the packaged sim board failed"; }
 note "scratch root: $(tail -n1 <<<"$check_out") (packaged slscand, sim board, packaged configuration)"
 grep -q '^token_file = "/etc/slscan/token"' "$root/etc/slscan/slscand.toml" || fail "slscand.toml: no token_file"
+
+# ---- the maintainer scripts, run as dpkg would in a private mount namespace (root only)
+if [ "$(id -u)" -eq 0 ] && command -v unshare >/dev/null; then
+  control=$out/control-amd64
+  mkdir -p "$control"
+  dpkg-deb -e "$out/slscand_${debversion}_amd64.deb" "$control"
+  scripts/package-maintscripts-test.sh "$control" "$root" 2>&1 | grep -v '^Created symlink\|^Removed' ||
+    fail "maintainer scripts"
+  [ "${PIPESTATUS[0]}" -eq 0 ] || fail "maintainer scripts"
+  rm -rf "$control"
+else
+  note "maintainer scripts: not run (needs root and unshare)"
+fi
 
 # ---- the unit, verified where it would be installed: the scratch root holds the system's own
 # units (targets it orders against) and /usr/bin/slscand for ExecStart.
