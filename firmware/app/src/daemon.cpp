@@ -5,6 +5,7 @@
 
 #include "slproto/calibration.hpp"
 #include "slproto/handshake.hpp"
+#include "slscand/app/security.hpp"
 #include "slscand/sequencer/realtime.hpp"
 
 namespace slscand {
@@ -48,6 +49,9 @@ slproto::Result<std::unique_ptr<Daemon>> Daemon::create(hal::BoardConfig board, 
                                                         DaemonOptions options) {
   const std::string address = options.bind_address.empty() ? board.bind_address : options.bind_address;
   const int port = options.port < 0 ? board.port : options.port;
+  if (auto policy = check_listen_policy(address, !options.auth_token.empty(), options.insecure_no_token); !policy)
+    return policy.error();
+  options.connection.limits = kHostMessageLimits;
   if (port > 65535) return make_error(Errc::invalid_argument, "port " + std::to_string(port) + " is out of range");
   slproto::ServerOptions server_options;
   server_options.connection = options.connection;
@@ -84,12 +88,46 @@ void Daemon::serve() {
       std::lock_guard lock(stats_mutex_);
       stats_.connections++;
     }
-    handle_connection(*connection);
+    // Others are turned away only once this host has passed the handshake: until then they
+    // wait in the listen backlog (at most the handshake timeout), so a silent connection
+    // cannot make the daemon refuse the real host.
+    std::atomic<bool> done{false};
+    std::thread turn_away;
+    handle_connection(*connection, [&] {
+      turn_away = std::thread([&, holder = connection->peer_address()] { turn_away_others(done, holder); });
+    });
     connection->close();
+    done = true;
+    if (turn_away.joinable()) turn_away.join();
   }
 }
 
-void Daemon::handle_connection(slproto::Connection& connection) {
+void Daemon::turn_away_others(const std::atomic<bool>& done, const std::string& holder) {
+  while (!done && !stop_) {
+    auto other = server_.accept(50ms);
+    if (!other) continue;
+    const std::string peer = other->peer_address();
+    // Read its hello first: closing a socket with unread data resets it, and the client would
+    // see "connection reset" instead of the reason.
+    (void)other->receive_as<pb::Hello>(options_.turn_away_timeout);
+    const std::string why = scanning_ ? "busy: scan in progress for " + holder
+                                      : "busy: host " + holder + " is connected (one host at a time)";
+    pb::HelloReply reply;
+    reply.set_accepted(false);
+    reply.set_error_code(static_cast<std::uint32_t>(Errc::busy));
+    reply.set_error_text(why);
+    reply.set_protocol_version(slproto::protocol_version);
+    reply.set_board_name(board_.name);
+    reply.set_software_version(kSoftwareVersion);
+    (void)other->send(reply, options_.turn_away_timeout);
+    other->close();
+    std::fprintf(stderr, "slscand: turned away %s: %s\n", peer.c_str(), why.c_str());
+    std::lock_guard lock(stats_mutex_);
+    stats_.connections_turned_away++;
+  }
+}
+
+void Daemon::handle_connection(slproto::Connection& connection, const std::function<void()>& on_accepted) {
   slproto::ServerIdentity identity;
   identity.board_name = board_.name;
   identity.software_version = kSoftwareVersion;
@@ -103,7 +141,14 @@ void Daemon::handle_connection(slproto::Connection& connection) {
   identity.camera.set_model(devices_.camera->describe());
   identity.projector_count = 2;
   identity.auth_token = options_.auth_token;
-  if (!slproto::server_handshake(connection, identity)) return;
+  if (auto hello = slproto::server_handshake(connection, identity, options_.handshake_timeout); !hello) {
+    std::fprintf(stderr, "slscand: %s\n", hello.error().message.c_str());
+    std::lock_guard lock(stats_mutex_);
+    stats_.handshakes_failed++;
+    stats_.last_error = hello.error().message;
+    return;
+  }
+  on_accepted();
 
   while (!stop_) {
     auto message = connection.receive(100ms);

@@ -1,5 +1,6 @@
 // slscand: the scanner board's daemon.
-//   slscand --board boards/sim.toml [--port N] [--bind ADDR] [--timing-log DIR] [--token T]
+//   slscand --board boards/sim.toml [--port N] [--bind ADDR] [--timing-log DIR] [--token-file F]
+//           [--insecure-no-token]
 //   slscand --board boards/sim.toml --timing-report [--views N] [--exposure-us E] [--period-us P]
 //   slscand --list-backends
 // Exit codes: 0 ok, 1 runtime failure, 2 bad command line or board file.
@@ -14,6 +15,7 @@
 
 #include "slproto/messages.hpp"
 #include "slscand/app/daemon.hpp"
+#include "slscand/app/security.hpp"
 #include "slscand/sequencer/realtime.hpp"
 
 namespace {
@@ -26,11 +28,15 @@ void on_signal(int) {
 
 void usage(std::FILE* out) {
   std::fputs(
-      "usage: slscand --board FILE [--port N] [--bind ADDR] [--timing-log DIR] [--token TOKEN] [--no-realtime]\n"
+      "usage: slscand --board FILE [--port N] [--bind ADDR] [--timing-log DIR] [--token-file FILE]\n"
+      "               [--insecure-no-token] [--no-realtime]\n"
       "       slscand --board FILE --timing-report [--views N] [--exposure-us E] [--period-us P]\n"
       "       slscand --list-backends\n"
       "Serves scans to one host at a time over slproto (TCP). --timing-report runs one scan on the\n"
-      "board locally (use the sim board for a machine without hardware) and prints its timing.\n",
+      "board locally (use the sim board for a machine without hardware) and prints its timing.\n"
+      "It listens on loopback unless --bind or the board file's bind_address say otherwise; any\n"
+      "other address needs --token-file (a file of mode 600 holding the hosts' shared token) or\n"
+      "an explicit --insecure-no-token (docs/security.md).\n",
       out);
 }
 
@@ -98,9 +104,9 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string board_path, bind, timing_dir, token;
+  std::string board_path, bind, timing_dir, token_file;
   long port = -1, views = 6, exposure_us = 0, period_us = 0;
-  bool report = false, realtime = true;
+  bool report = false, realtime = true, insecure_no_token = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&](const char* name) -> const char* {
@@ -116,8 +122,10 @@ int main(int argc, char** argv) {
       bind = value("--bind");
     else if (arg == "--timing-log")
       timing_dir = value("--timing-log");
-    else if (arg == "--token")
-      token = value("--token");
+    else if (arg == "--token-file")
+      token_file = value("--token-file");
+    else if (arg == "--insecure-no-token")
+      insecure_no_token = true;
     else if (arg == "--timing-report")
       report = true;
     else if (arg == "--no-realtime")
@@ -154,6 +162,27 @@ int main(int argc, char** argv) {
   if (!board) {
     std::fprintf(stderr, "slscand: %s\n", board.error().message.c_str());
     return 2;
+  }
+  // The network policy before any device is opened: a refused start touches no hardware.
+  std::string token;
+  if (!report) {
+    if (!token_file.empty()) {
+      auto read = slscand::read_token_file(token_file);
+      if (!read) {
+        std::fprintf(stderr, "slscand: %s\n", read.error().message.c_str());
+        return 2;
+      }
+      token = std::move(*read);
+    }
+    const std::string address = bind.empty() ? board->bind_address : bind;
+    if (auto policy = slscand::check_listen_policy(address, !token.empty(), insecure_no_token); !policy) {
+      std::fprintf(stderr, "slscand: %s\n", policy.error().message.c_str());
+      return 2;
+    }
+    if (token.empty() && !slscand::is_loopback_address(address)) {
+      std::fprintf(stderr, "slscand: warning: --insecure-no-token: anyone who can reach %s can drive the scanner\n",
+                   address.c_str());
+    }
   }
   auto devices = slscand::hal::open_board_devices(*board);
   if (!devices) {

@@ -6,7 +6,9 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -21,11 +23,20 @@ struct DaemonOptions {
   std::string bind_address;        // "" = the board's
   int port = -1;                   // -1 = the board's, 0 = any free port
   std::string timing_log_dir;      // "" = do not write timing logs on the board
-  std::string auth_token;          // "" = none required
+  std::string auth_token;          // "" = none required (refused on a non-loopback address...
+  bool insecure_no_token = false;  // ...unless this is set: security.hpp, check_listen_policy)
   std::size_t queue_capacity = 8;  // frames between the sequencer and the streamer
   bool realtime = true;            // SCHED_FIFO + mlockall if the board allows it
   slproto::ConnectionOptions connection;
+  // A connection must complete its hello within this (a silent or trickling peer is dropped).
+  std::chrono::milliseconds handshake_timeout{3000};
+  // A second host waits this long for its hello to arrive before it is told "busy" and closed.
+  std::chrono::milliseconds turn_away_timeout{1000};
 };
+
+// What slscand accepts from a host (docs/security.md): a host sends only control messages, so
+// frames with pixel payloads are refused, and control messages are small.
+inline constexpr slproto::DecoderLimits kHostMessageLimits{64u << 10, 0};
 
 struct DaemonStats {
   std::uint64_t connections = 0;
@@ -34,6 +45,8 @@ struct DaemonStats {
   std::uint64_t scans_aborted = 0;
   std::uint64_t scans_failed = 0;
   std::uint64_t scans_refused = 0;
+  std::uint64_t handshakes_failed = 0;        // silent, wrong token, wrong version, garbage
+  std::uint64_t connections_turned_away = 0;  // a second host while one was served
   std::string last_error;
   // The last scan that ran (any ending): its timing report with every percentile (ScanDone
   // carries only mean/stddev/min/max/p99) and how often back-pressure paused the sequencer.
@@ -60,7 +73,10 @@ class Daemon {
 
  private:
   Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server);
-  void handle_connection(slproto::Connection& connection);
+  // `on_accepted` runs once the host has passed the handshake.
+  void handle_connection(slproto::Connection& connection, const std::function<void()>& on_accepted);
+  // While `holder` is served: answers every other connection's hello "busy" and closes it.
+  void turn_away_others(const std::atomic<bool>& done, const std::string& holder);
   // False when the connection is gone.
   bool run_scan(slproto::Connection& connection, const slproto::pb::ScanRequest& request);
   void write_timing_log(const ScanPlan& plan, const ScanOutcome& outcome, const std::vector<TimingEvent>& sent);
