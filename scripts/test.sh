@@ -6,7 +6,7 @@
 #   4. the libgpiod v2 GPIO backend, compiled and unit-tested against bookworm-backports' 2.x
 #   5. the firmware cross-built for aarch64 (scripts/cross-build.sh arm64): slscand must be an
 #      aarch64 ELF, and the firmware tests run under qemu-user
-#   6. each libFuzzer target for a short fixed time on its committed corpus
+#   6. each libFuzzer target (10: every parser of outside data) for 15 s on its committed corpus
 #   7. clang-format check of every source file
 # Usage: scripts/test.sh   (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 / SLSCAN_SKIP_GPIOD2=1 /
 #        SLSCAN_SKIP_CROSS=1 to shorten)
@@ -48,7 +48,7 @@ fi
 
 if [ "${SLSCAN_SKIP_FUZZ:-0}" != 1 ] && [ -d tests/fuzz ]; then
   step "fuzz smoke (libFuzzer, clang-14)"
-  scripts/fuzz.sh "${SLSCAN_FUZZ_SECONDS:-20}"
+  scripts/fuzz.sh "${SLSCAN_FUZZ_SECONDS:-15}"
 fi
 
 step "clang-format"
