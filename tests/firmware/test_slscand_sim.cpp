@@ -611,6 +611,7 @@ TEST_F(DaemonFixture, SecondHostIsTurnedAwayAndCannotTouchTheRunningScan) {
   ASSERT_TRUE(rest.done.has_value());
   EXPECT_EQ(rest.done->final_state(), pb::SCAN_STATE_DONE) << rest.done->text();
   EXPECT_EQ(first.frames.size() + rest.frames.size(), 2u * 38u);
+  for (int i = 0; i < 200 && daemon_->stats().connections_turned_away == 0; ++i) std::this_thread::sleep_for(10ms);
   EXPECT_EQ(daemon_->stats().connections_turned_away, 1u);
 
   // Idle but connected still holds the scanner; once the first host leaves, the next one scans.
@@ -671,7 +672,12 @@ TEST_F(DaemonFixture, SilentOversizedAndUnauthorisedConnectionsAreDropped) {
   (void)::send(big, bytes->data(), 64, MSG_NOSIGNAL);  // the header and a little more
   EXPECT_LT(time_until_closed(big, 10s), 2500ms);
   ::close(big);
-  std::this_thread::sleep_for(100ms);
+  // The daemon counts a failed handshake after the peer has its answer: wait for the count.
+  auto wait_for_failed_handshakes = [&](std::uint64_t n) {
+    for (int i = 0; i < 200 && daemon_->stats().handshakes_failed < n; ++i) std::this_thread::sleep_for(10ms);
+    return daemon_->stats().handshakes_failed;
+  };
+  EXPECT_EQ(wait_for_failed_handshakes(2), 2u);
   EXPECT_NE(daemon_->stats().last_error.find("limit"), std::string::npos) << daemon_->stats().last_error;
 
   // No token, a wrong one, a prefix of the right one: refused, and each says why.
@@ -683,7 +689,7 @@ TEST_F(DaemonFixture, SilentOversizedAndUnauthorisedConnectionsAreDropped) {
     ASSERT_FALSE(reply.ok()) << "token '" << token << "' was accepted";
     EXPECT_EQ(reply.error().code, slproto::Errc::unauthorized);
   }
-  EXPECT_EQ(daemon_->stats().handshakes_failed, 5u);
+  EXPECT_EQ(wait_for_failed_handshakes(5), 5u);
   // The right token: the daemon serves the scan after all of that.
   slproto::Connection c = connect("0123456789abcdef-token");
   expect_next_scan_runs(c, 110);
