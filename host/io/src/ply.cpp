@@ -162,9 +162,14 @@ PlyTable read_ply_table(const std::string& path) {
     } else if (keyword == "element") {
       PlyElement element;
       long long count = -1;
-      words >> element.name >> count;
-      if (element.name.empty() || count < 0 || count > (1LL << 32))
+      // A count that does not parse leaves 0 in `count`, so the extraction itself is checked.
+      if (!(words >> element.name >> count) || count < 0 || count > (1LL << 32))
         fail(path, where + ": malformed element line '" + line + "'");
+      // The columns are the vertex element's: a second one would index past them.
+      for (const PlyElement& earlier : elements) {
+        if (earlier.name == element.name && (element.name == "vertex" || element.name == "face"))
+          fail(path, where + ": a second '" + element.name + "' element");
+      }
       element.count = static_cast<std::size_t>(count);
       elements.push_back(element);
     } else if (keyword == "property") {
