@@ -1,37 +1,53 @@
 #!/usr/bin/env bash
 # Builds the fuzz preset (clang-14, libFuzzer + ASan + UBSan) and runs every fuzz target for
-# SECONDS each on a scratch copy of its committed seed corpus (tests/fuzz/corpus/<target>).
-# Fails on the first crash, leak, sanitizer report or timeout; the offending input is kept in
-# build/fuzz/artifacts/.
-# Usage: scripts/fuzz.sh [SECONDS=60]
-#   Longer campaign that grows the committed corpus (then review and commit new files):
-#     scripts/fuzz.sh 3600 && build/fuzz/tests/fuzz/fuzz_frame_decoder -merge=1 \
-#         tests/fuzz/corpus/frame_decoder build/fuzz/corpus-work/frame_decoder
+# SECONDS each on a copy of its committed seed corpus (tests/fuzz/corpus/<target>), replaying
+# the committed corpus (seeds and past crashers) first. Fails on the first crash, leak,
+# sanitizer report or timeout; the offending input is kept in build/fuzz/artifacts/.
+# Usage: scripts/fuzz.sh [SECONDS=60] [TARGET...]      (default: every target the build has)
+#   SLSCAN_FUZZ_KEEP=1  keep and grow build/fuzz/corpus-work/<target> across runs (a long
+#                       campaign in several sittings) instead of starting from the seeds
+#   SLSCAN_FUZZ_NO_BUILD=1  use the binaries already built
+#   Long campaign (docs/security.md), one target at a time, niced:
+#     SLSCAN_FUZZ_KEEP=1 nice -n 19 scripts/fuzz.sh 600
+#   then fold the new inputs worth keeping into the committed corpus (review, commit):
+#     build/fuzz/tests/fuzz/fuzz_ply -merge=1 tests/fuzz/corpus/ply build/fuzz/corpus-work/ply
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 seconds=${1:-60}
-targets=(frame_decoder capture_reader)
+shift || true
 build=build/fuzz
 
-cmake --preset fuzz >/dev/null
-cmake --build --preset fuzz -j "$(nproc)" --target "${targets[@]/#/fuzz_}"
+if [ "${SLSCAN_FUZZ_NO_BUILD:-0}" != 1 ]; then
+  cmake --preset fuzz >/dev/null
+fi
+if [ $# -gt 0 ]; then
+  targets=("$@")
+else
+  read -r -a targets <<<"$(tr ';' ' ' <"$build/tests/fuzz/targets.txt")"
+fi
+if [ "${SLSCAN_FUZZ_NO_BUILD:-0}" != 1 ]; then
+  cmake --build --preset fuzz -j "$(nproc)" --target "${targets[@]/#/fuzz_}"
+fi
 
 mkdir -p "$build/artifacts"
 work="$build/corpus-work"
-rm -rf "$work"
 for target in "${targets[@]}"; do
+  if [ "${SLSCAN_FUZZ_KEEP:-0}" != 1 ]; then rm -rf "${work:?}/$target"; fi
   mkdir -p "$work/$target"
-  cp tests/fuzz/corpus/"$target"/* "$work/$target"/
+  cp -n tests/fuzz/corpus/"$target"/* "$work/$target"/
   echo "==== fuzz_$target for ${seconds}s"
+  log="$build/fuzz_$target.log"
   if ! ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
       "$build/tests/fuzz/fuzz_$target" -max_total_time="$seconds" -timeout=10 -rss_limit_mb=2048 \
-      -print_final_stats=1 -artifact_prefix="$build/artifacts/$target-" "$work/$target" \
-      >"$build/fuzz_$target.log" 2>&1; then
-    tail -n 60 "$build/fuzz_$target.log"
-    echo "fuzz_$target FAILED: reproducer in $build/artifacts/ (log: $build/fuzz_$target.log)" >&2
+      -malloc_limit_mb=512 -print_final_stats=1 -artifact_prefix="$build/artifacts/$target-" \
+      "$work/$target" >"$log" 2>&1; then
+    tail -n 60 "$log"
+    echo "fuzz_$target FAILED: reproducer in $build/artifacts/ (log: $log)" >&2
     exit 1
   fi
-  grep -E "^stat::number_of_executed_units|^stat::peak_rss_mb" "$build/fuzz_$target.log" || true
-  echo "fuzz_$target: no crash; corpus $(ls "$work/$target" | wc -l) inputs"
+  execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log")
+  rss=$(sed -n 's/^stat::peak_rss_mb: *//p' "$log")
+  echo "fuzz_$target: no crash; ${execs:-?} executions in ${seconds}s, peak RSS ${rss:-?} MB," \
+    "corpus $(find "$work/$target" -type f | wc -l) inputs"
 done

@@ -9,10 +9,11 @@
 #   6. the Debian packages (scripts/package.sh): amd64 slscand + slscan from the dev build, arm64
 #      slscand from step 5's cross build, metadata/contents checks, a scratch-root unpack,
 #      systemd-analyze verify of the unit, lintian
-#   7. each libFuzzer target for a short fixed time on its committed corpus
-#   8. clang-format check of every source file
+#   7. HIL in a VM (scripts/hil-vm.sh): the real GPIO, V4L2 and serial backends in qemu
+#   8. each libFuzzer target (every parser of outside data) for 15 s on its committed corpus
+#   9. clang-format check of every source file
 # Usage: scripts/test.sh   (SLSCAN_SKIP_ASAN=1 / SLSCAN_SKIP_FUZZ=1 / SLSCAN_SKIP_GPIOD2=1 /
-#        SLSCAN_SKIP_CROSS=1 / SLSCAN_SKIP_PACKAGE=1 to shorten)
+#        SLSCAN_SKIP_CROSS=1 / SLSCAN_SKIP_PACKAGE=1 / SLSCAN_SKIP_HILVM=1 to shorten)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -68,7 +69,7 @@ fi
 
 if [ "${SLSCAN_SKIP_FUZZ:-0}" != 1 ] && [ -d tests/fuzz ]; then
   step "fuzz smoke (libFuzzer, clang-14)"
-  scripts/fuzz.sh "${SLSCAN_FUZZ_SECONDS:-20}"
+  scripts/fuzz.sh "${SLSCAN_FUZZ_SECONDS:-15}"
 fi
 
 step "clang-format"

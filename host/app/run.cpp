@@ -2,8 +2,10 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <csignal>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -68,8 +70,9 @@ class StreamReconstruction {
 
   void set_plan(const slproto::PatternPlan& plan) {
     if (!(plan.config() == calibration_.pattern_plan))
-      throw io::IoError("the capture's pattern plan differs from the plan the calibration was made with (" +
-                        describe(plan.config()) + " vs " + describe(calibration_.pattern_plan) + ")");
+      throw io::IoError("the capture's pattern plan differs from the plan the calibration was made with: " +
+                        differences(plan.config(), calibration_.pattern_plan) + " (capture " + describe(plan.config()) +
+                        ", calibration " + describe(calibration_.pattern_plan) + ")");
     plan_ = plan;
   }
 
@@ -90,6 +93,26 @@ class StreamReconstruction {
   const std::vector<slproto::pb::FrameHeader>& received() const { return received_; }
 
  private:
+  // "period_px 8 in the capture, 16 in the calibration; ..." for each field that differs.
+  static std::string differences(const slproto::PatternPlanConfig& capture, const slproto::PatternPlanConfig& calib) {
+    std::string out;
+    auto field = [&](const char* name, const std::string& a, const std::string& b) {
+      if (a == b) return;
+      out += (out.empty() ? "" : "; ") + std::string(name) + " " + a + " in the capture, " + b + " in the calibration";
+    };
+    auto yes_no = [](bool v) { return std::string(v ? "true" : "false"); };
+    field("projector_width", std::to_string(capture.projector_width), std::to_string(calib.projector_width));
+    field("projector_height", std::to_string(capture.projector_height), std::to_string(calib.projector_height));
+    field("axis", slproto::coding_axis_name(capture.axis), slproto::coding_axis_name(calib.axis));
+    field("period_px", std::to_string(capture.period_px), std::to_string(calib.period_px));
+    field("phase_steps", std::to_string(capture.phase_steps), std::to_string(calib.phase_steps));
+    field("complementary_bit", yes_no(capture.complementary_bit), yes_no(calib.complementary_bit));
+    field("with_white_black", yes_no(capture.with_white_black), yes_no(calib.with_white_black));
+    field("inverse_gray", yes_no(capture.inverse_gray), yes_no(calib.inverse_gray));
+    field("gray_low_bits", slproto::gray_low_bits_name(capture.gray_low_bits),
+          slproto::gray_low_bits_name(calib.gray_low_bits));
+    return out;
+  }
   static std::string describe(const slproto::PatternPlanConfig& c) {
     return std::to_string(c.projector_width) + "x" + std::to_string(c.projector_height) + " " +
            slproto::coding_axis_name(c.axis) + " P=" + std::to_string(c.period_px) +
@@ -208,7 +231,7 @@ int run_scan(const ScanCommand& command, const Console& console) {
   const auto start = Clock::now();
   const slproto::RigCalibration calibration = load_calibration_or_throw(command.calibration_path);
   const core::ReconstructionOptions options = options_from(command.config_path);
-  const std::string token = command.token_file.empty() ? std::string() : read_token_file(command.token_file);
+  const std::string token = read_token_file(command.token_file);
 
   auto connection = slproto::connect(command.host, command.port, std::chrono::seconds(3));
   if (!connection)
@@ -267,7 +290,17 @@ int run_scan(const ScanCommand& command, const Console& console) {
     auto message = connection->receive(std::chrono::milliseconds(200));
     if (!message) {
       if (message.error().code == slproto::Errc::timeout) continue;
-      failure = "connection to the scanner: " + message.error().message;
+      if (message.error().code == slproto::Errc::io_error) {
+        // Our capture could not be written (disk full, file size limit): stop the scanner,
+        // which would otherwise go on scanning into nothing.
+        failure = message.error().message;
+        slproto::pb::Abort abort;
+        abort.set_scan_id(request.scan_id());
+        abort.set_reason("the host cannot record: " + message.error().message);
+        (void)connection->send(abort);
+      } else {
+        failure = "connection to the scanner: " + message.error().message;
+      }
       break;
     }
     if (const auto* header = message->get<slproto::pb::FrameHeader>()) {
@@ -282,8 +315,13 @@ int run_scan(const ScanCommand& command, const Console& console) {
   console.end_progress();
   connection->record_to(nullptr);
   connection->close();
-  if (auto status = capture->finish(); !status) throw io::IoError(status.error().message);
-  if (failure) throw DeviceError(*failure + " (the capture up to here is in " + capture_path + ")");
+  const slproto::Status finished = capture->finish();
+  // The cause first: a write error also makes finish() fail, and its message alone would hide why.
+  if (failure) {
+    const std::string kept = finished ? capture_path : capture->partial_path();
+    throw DeviceError(*failure + " (the capture up to the last complete frame is in " + kept + ")");
+  }
+  if (!finished) throw io::IoError(finished.error().message);
   if (abort_sent) {
     console.warn("scan aborted; the capture of what arrived is in " + capture_path);
     return exit_interrupted;

@@ -1,7 +1,9 @@
 #include "status.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
@@ -50,11 +52,16 @@ std::pair<std::string, std::uint16_t> parse_scanner_address(const std::string& t
 }
 
 std::string read_token_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw io::IoError(path + ": cannot read the token file");
+  const char* env_token_file = std::getenv("SLSCAN_TOKEN_FILE");
+  const std::string file = !path.empty() ? path : (env_token_file != nullptr ? env_token_file : "");
+  if (file.empty()) return {};
+  std::ifstream in(file);
+  if (!in) throw io::IoError(file + ": cannot read the token file");
   std::string token;
   std::getline(in, token);
-  while (!token.empty() && (token.back() == '\r' || token.back() == ' ')) token.pop_back();
+  while (!token.empty() && (token.back() == '\r' || token.back() == ' ' || token.back() == '\t')) token.pop_back();
+  token.erase(0, std::min(token.find_first_not_of(" \t"), token.size()));
+  if (token.empty()) throw io::IoError(file + ": the token file is empty");
   return token;
 }
 
@@ -217,7 +224,7 @@ int run_discover(const DiscoverCommand& command, const Console& console) {
 
 int run_status(const StatusCommand& command, const Console&) {
   const auto [host, port] = parse_scanner_address(command.address);
-  const std::string token = command.token_file.empty() ? std::string() : read_token_file(command.token_file);
+  const std::string token = read_token_file(command.token_file);
   const std::string where = host + ":" + std::to_string(port);
   auto connection = slproto::connect(host, port, std::chrono::seconds(3));
   if (!connection) throw DeviceError("cannot connect to " + where + ": " + connection.error().message);

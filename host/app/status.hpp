@@ -19,7 +19,9 @@ inline constexpr std::uint16_t default_scanner_port = 7878;
 // Throws std::invalid_argument naming the text for an empty host or a bad port.
 std::pair<std::string, std::uint16_t> parse_scanner_address(const std::string& text);
 
-// Reads the first line of a token file; throws io::IoError naming the file if it cannot.
+// The token a host presents: the first line of `path`, or of $SLSCAN_TOKEN_FILE when `path` is
+// empty, "" when neither is set. Never from the command line, where any user of the machine
+// could read it in ps. Throws io::IoError naming the file if it cannot be read or is empty.
 std::string read_token_file(const std::string& path);
 
 struct StatusCommand {

@@ -331,7 +331,7 @@ Result<RigCalibration> parse_calibration(std::string_view text, std::string_view
   json doc;
   try {
     doc = json::parse(text.begin(), text.end());
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, and out_of_range for a number beyond double
     return make_error(Errc::malformed, where + ": not valid JSON (" + e.what() + ")");
   }
   Reader r{where};

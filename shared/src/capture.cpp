@@ -130,7 +130,10 @@ Status write_iov(int fd, iovec* iov, int count, std::size_t& done) {
     const ssize_t n = ::writev(fd, iov, count);
     if (n < 0) {
       if (errno == EINTR) continue;
-      return make_error(Errc::io_error, errno_text(errno));
+      const int error = errno;
+      if (error == ENOSPC || error == EFBIG || error == EDQUOT)
+        return make_error(Errc::io_error, "disk full or file too large: " + errno_text(error));
+      return make_error(Errc::io_error, errno_text(error));
     }
     if (n == 0) return make_error(Errc::io_error, "write made no progress");
     done += static_cast<std::size_t>(n);

@@ -12,6 +12,7 @@
 #include "slproto/transport.hpp"
 #include "slscand/app/check.hpp"
 #include "slscand/app/config.hpp"
+#include "slscand/app/security.hpp"
 
 namespace {
 
@@ -182,15 +183,15 @@ TEST(SlscandConfig, ErrorsNameTheFileLineAndKey) {
 
 TEST(SlscandConfig, TokenFileMustBePrivateAndNonEmpty) {
   TempDir dir;
-  auto good = read_token_file(dir.write("good", "s3cret  \n").string());
+  auto good = read_token_file(dir.write("good", "s3cret-s3cret-s3cret  \n").string());
   ASSERT_TRUE(good.ok()) << good.error().message;
-  EXPECT_EQ(*good, "s3cret");
-  auto readable = read_token_file(dir.write("readable", "s3cret\n", fs::perms(0640)).string());
+  EXPECT_EQ(*good, "s3cret-s3cret-s3cret");
+  auto readable = read_token_file(dir.write("readable", "s3cret-s3cret-s3cret\n", fs::perms(0640)).string());
   ASSERT_FALSE(readable.ok());
-  EXPECT_THAT(readable.error().message, HasSubstr("has mode 0640: group and others must have no access"));
+  EXPECT_THAT(readable.error().message, HasSubstr("mode 0640 lets the group or others access the token"));
   auto empty = read_token_file(dir.write("empty", "\n").string());
   ASSERT_FALSE(empty.ok());
-  EXPECT_THAT(empty.error().message, HasSubstr("is empty"));
+  EXPECT_THAT(empty.error().message, HasSubstr("empty; write a random token"));
   auto missing = read_token_file((dir.path / "nothing").string());
   ASSERT_FALSE(missing.ok());
   EXPECT_THAT(missing.error().message, HasSubstr("No such file"));

@@ -1,8 +1,11 @@
 // slscand on the sim board, driven by a host over loopback: a full 6-view scan arrives in
 // order with its timing log; abort, disconnect and each device fault end the scan cleanly
 // (projectors dark, an error naming the cause) and leave the daemon ready for the next scan.
+#include <arpa/inet.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -16,6 +19,7 @@
 #include "slproto/transport.hpp"
 #include "slscand/app/daemon.hpp"
 #include "slscand/hal/sim/sim_rig.hpp"
+#include "slscand/sequencer/scan_plan.hpp"
 
 using namespace slscand;
 using namespace std::chrono_literals;
@@ -26,7 +30,8 @@ namespace {
 class DaemonFixture : public ::testing::Test {
  protected:
   void start(double frame_timeout_ms = 20000, std::string timing_log_dir = {},
-             const std::function<void(hal::BoardConfig&)>& adjust = {}) {
+             const std::function<void(hal::BoardConfig&)>& adjust = {},
+             const std::function<void(DaemonOptions&)>& adjust_options = {}) {
     auto board = hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml");
     ASSERT_TRUE(board.ok()) << board.error().message;
     // The renderer's speed (ASan, a loaded CI machine) is not part of the timing model.
@@ -38,6 +43,7 @@ class DaemonFixture : public ::testing::Test {
     options.port = 0;
     options.realtime = false;
     options.timing_log_dir = std::move(timing_log_dir);
+    if (adjust_options) adjust_options(options);
     auto daemon = Daemon::create(*board, std::move(*devices), options);
     ASSERT_TRUE(daemon.ok()) << daemon.error().message;
     daemon_ = std::move(*daemon);
@@ -48,10 +54,10 @@ class DaemonFixture : public ::testing::Test {
     if (server_.joinable()) server_.join();
   }
 
-  slproto::Connection connect() {
+  slproto::Connection connect(const std::string& token = {}) {
     auto connection = slproto::connect("127.0.0.1", daemon_->port(), 5s);
     EXPECT_TRUE(connection.ok()) << connection.error().message;
-    auto reply = slproto::client_handshake(*connection, slproto::make_hello("test", "0"));
+    auto reply = slproto::client_handshake(*connection, slproto::make_hello("test", "0", 0, token));
     EXPECT_TRUE(reply.ok()) << reply.error().message;
     EXPECT_EQ(reply->board_name(), "sim");
     EXPECT_TRUE(reply->capabilities() & pb::CAPABILITY_SIMULATED);
@@ -537,7 +543,8 @@ TEST_F(DaemonFixture, StatusNamesTheBoardItsVersionsAndItsLastScan) {
   auto refused = second->receive_as<pb::ScanDone>(10s);
   ASSERT_FALSE(refused.ok());
   EXPECT_EQ(refused.error().code, slproto::Errc::busy);
-  EXPECT_THAT(refused.error().message, ::testing::HasSubstr("another host (127.0.0.1:"));
+  EXPECT_THAT(refused.error().message, ::testing::HasSubstr("busy: host 127.0.0.1:"));
+  EXPECT_THAT(refused.error().message, ::testing::HasSubstr("is connected (one host at a time)"));
 
   // The first host can ask too, on its own connection.
   pb::HelloReply negotiated;
@@ -545,4 +552,289 @@ TEST_F(DaemonFixture, StatusNamesTheBoardItsVersionsAndItsLastScan) {
   auto own = slproto::request_status(c, negotiated, 5s);
   ASSERT_TRUE(own.ok()) << own.error().message;
   EXPECT_EQ(own->last_scan().scan_id(), 71u);
+}
+
+// ---- faults of issue 8 that the tests above do not cover (docs/faults.md)
+
+TEST_F(DaemonFixture, TurntableGarbageIsSkippedAndAWrongAngleEndsTheScan) {
+  start();
+  slproto::Connection c = connect();
+  auto& table = daemon_->devices().sim_rig->turntable();
+  // Line noise before every reply: the driver skips it and the scan completes.
+  hal::sim::TurntableFaults noisy;
+  noisy.garbage = true;
+  table.set_faults(noisy);
+  ASSERT_TRUE(c.send(request(70, 2)).ok());
+  Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
+  EXPECT_EQ(r.frames.size(), 2u * 38u);
+
+  // A table that lands 0.5 deg off: the scan fails naming both angles; view 0's frames arrived.
+  hal::sim::TurntableFaults off;
+  off.landing_error_deg = 0.5;
+  table.set_faults(off);
+  ASSERT_TRUE(c.send(request(71, 2)).ok());
+  r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_EQ(slproto::errc_from_wire(r.errors[0].code()), slproto::Errc::hardware);
+  EXPECT_NE(r.errors[0].text().find("after a move to"), std::string::npos) << r.errors[0].text();
+  EXPECT_NE(r.errors[0].text().find("tolerance"), std::string::npos) << r.errors[0].text();
+  expect_dark_and_idle();
+  table.set_faults({});
+  expect_next_scan_runs(c, 72);
+}
+
+TEST_F(DaemonFixture, DroppedAndShortCameraFramesEndTheScanWithTheCause) {
+  start();
+  slproto::Connection c = connect();
+  hal::sim::SimRig& rig = *daemon_->devices().sim_rig;
+  hal::sim::SimFaults drop;
+  drop.drop_frame_after = 5;
+  rig.set_faults(drop);
+  ASSERT_TRUE(c.send(request(80, 1)).ok());
+  Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_NE(r.errors[0].text().find("camera dropped 1 frame(s)"), std::string::npos) << r.errors[0].text();
+  // The five frames before the gap were delivered, and nothing after it.
+  EXPECT_EQ(r.frames.size(), 5u);
+  for (std::size_t i = 0; i < r.frames.size(); ++i) EXPECT_EQ(r.frames[i].sequence(), i);
+  expect_dark_and_idle();
+
+  hal::sim::SimFaults short_frame;
+  short_frame.short_frame_after = 3;
+  rig.set_faults(short_frame);
+  ASSERT_TRUE(c.send(request(81, 1)).ok());
+  r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_NE(r.errors[0].text().find("bytes; expected 640 x 512 mono8 with 327680 bytes"), std::string::npos)
+      << r.errors[0].text();
+  EXPECT_EQ(r.frames.size(), 3u);
+  expect_dark_and_idle();
+  rig.set_faults({});
+  expect_next_scan_runs(c, 82);
+}
+
+TEST_F(DaemonFixture, SlowHostPausesTheSequenceAndLosesNoFrame) {
+  // A two-frame queue and small socket buffers: a host that takes 30 ms per frame (the
+  // pattern period is 5 ms) fills them within a few frames, and the sequencer must wait.
+  start(20000, {}, {}, [](DaemonOptions& options) {
+    options.queue_capacity = 2;
+    options.connection.socket_buffer_bytes = 64 << 10;
+  });
+  slproto::ConnectionOptions small;
+  small.socket_buffer_bytes = 64 << 10;
+  auto connection = slproto::connect("127.0.0.1", daemon_->port(), 5s, small);
+  ASSERT_TRUE(connection.ok()) << connection.error().message;
+  ASSERT_TRUE(slproto::client_handshake(*connection, slproto::make_hello("slow", "0")).ok());
+  ASSERT_TRUE(connection->send(request(90, 1)).ok());
+  std::vector<std::uint64_t> sequences;
+  std::optional<pb::ScanDone> done;
+  while (!done) {
+    auto m = connection->receive(60s);
+    ASSERT_TRUE(m.ok()) << m.error().message;
+    if (const auto* f = m->get<pb::FrameHeader>()) {
+      sequences.push_back(f->sequence());
+      std::this_thread::sleep_for(30ms);
+    } else if (const auto* d = m->get<pb::ScanDone>()) {
+      done = *d;
+    }
+  }
+  EXPECT_EQ(done->final_state(), pb::SCAN_STATE_DONE) << done->text();
+  ASSERT_EQ(sequences.size(), 38u);
+  for (std::size_t i = 0; i < sequences.size(); ++i) EXPECT_EQ(sequences[i], i);
+  EXPECT_EQ(done->frames_dropped(), 0u);
+  EXPECT_GT(daemon_->stats().last_backpressure_pauses, 0u) << "the slow host never held the sequencer back";
+}
+
+// ---- network security (docs/security.md)
+
+TEST_F(DaemonFixture, SecondHostIsTurnedAwayAndCannotTouchTheRunningScan) {
+  start();
+  slproto::Connection c = connect();
+  ASSERT_TRUE(c.send(request(100, 2)).ok());
+  Received first = receive_scan(c, 4);
+  ASSERT_EQ(first.frames.size(), 4u);
+
+  // A second host during the scan may ask for status, but its abort is refused naming who holds
+  // the scanner, its connection is closed, and the running scan does not notice.
+  auto other = slproto::connect("127.0.0.1", daemon_->port(), 5s);
+  ASSERT_TRUE(other.ok()) << other.error().message;
+  auto reply = slproto::client_handshake(*other, slproto::make_hello("intruder", "0"));
+  ASSERT_TRUE(reply.ok()) << reply.error().message;
+  auto status = slproto::request_status(*other, *reply, 5s);
+  ASSERT_TRUE(status.ok()) << status.error().message;
+  EXPECT_TRUE(status->scanning());
+  pb::Abort abort;
+  abort.set_scan_id(100);
+  abort.set_reason("hijack");
+  ASSERT_TRUE(other->send(abort).ok());
+  auto refused = other->receive_as<pb::ScanDone>(5s);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code, slproto::Errc::busy);
+  EXPECT_NE(refused.error().message.find("busy: scan in progress for 127.0.0.1:"), std::string::npos)
+      << refused.error().message;
+  other->close();
+
+  const Received rest = receive_scan(c);
+  ASSERT_TRUE(rest.done.has_value());
+  EXPECT_EQ(rest.done->final_state(), pb::SCAN_STATE_DONE) << rest.done->text();
+  EXPECT_EQ(first.frames.size() + rest.frames.size(), 2u * 38u);
+  for (int i = 0; i < 200 && daemon_->stats().connections_turned_away == 0; ++i) std::this_thread::sleep_for(10ms);
+  EXPECT_EQ(daemon_->stats().connections_turned_away, 1u);
+
+  // Idle but connected still holds the scanner; once the first host leaves, the next one scans.
+  auto idle_other = slproto::connect("127.0.0.1", daemon_->port(), 5s);
+  ASSERT_TRUE(idle_other.ok());
+  ASSERT_TRUE(slproto::client_handshake(*idle_other, slproto::make_hello("second", "0")).ok());
+  ASSERT_TRUE(idle_other->send(request(102, 1)).ok());
+  auto idle_refused = idle_other->receive_as<pb::ScanDone>(5s);
+  ASSERT_FALSE(idle_refused.ok());
+  EXPECT_NE(idle_refused.error().message.find("is connected (one host at a time)"), std::string::npos)
+      << idle_refused.error().message;
+  idle_other->close();
+  c.close();
+  std::this_thread::sleep_for(300ms);
+  slproto::Connection next = connect();
+  expect_next_scan_runs(next, 101);
+}
+
+// Waits until the daemon closes a raw socket; returns how long that took.
+std::chrono::milliseconds time_until_closed(int fd, std::chrono::seconds limit) {
+  const auto begin = std::chrono::steady_clock::now();
+  timeval tv{static_cast<time_t>(limit.count()), 0};
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  char buffer[4096];
+  while (::recv(fd, buffer, sizeof buffer, 0) > 0) {
+  }
+  return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() - begin);
+}
+
+int raw_connect(std::uint16_t port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  sockaddr_in address{};
+  address.sin_family = AF_INET;
+  address.sin_port = htons(port);
+  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  if (::connect(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) != 0) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+TEST_F(DaemonFixture, SilentOversizedAndUnauthorisedConnectionsAreDropped) {
+  start(20000, {}, {}, [](DaemonOptions& options) {
+    options.handshake_timeout = 1000ms;
+    options.auth_token = "0123456789abcdef-token";
+  });
+  // Slowloris: connects and says nothing. Dropped at the handshake timeout (the transport's
+  // silent-peer check may drop it sooner), not held.
+  const int silent = raw_connect(daemon_->port());
+  ASSERT_GE(silent, 0);
+  EXPECT_LT(time_until_closed(silent, 10s), 2500ms);
+  ::close(silent);
+
+  // A hello with a 200 KB name: over the 64 KiB control limit, refused on its header alone.
+  pb::Hello huge = slproto::make_hello(std::string(200 << 10, 'x'), "0", 0, "0123456789abcdef-token");
+  auto bytes = slproto::encode(huge);
+  ASSERT_TRUE(bytes.ok());
+  const int big = raw_connect(daemon_->port());
+  ASSERT_GE(big, 0);
+  (void)::send(big, bytes->data(), 64, MSG_NOSIGNAL);  // the header and a little more
+  EXPECT_LT(time_until_closed(big, 10s), 2500ms);
+  ::close(big);
+  // The daemon counts a failed handshake after the peer has its answer: wait for the count.
+  auto wait_for_failed_handshakes = [&](std::uint64_t n) {
+    for (int i = 0; i < 200 && daemon_->stats().handshakes_failed < n; ++i) std::this_thread::sleep_for(10ms);
+    return daemon_->stats().handshakes_failed;
+  };
+  EXPECT_EQ(wait_for_failed_handshakes(2), 2u);
+  EXPECT_NE(daemon_->stats().last_error.find("limit"), std::string::npos) << daemon_->stats().last_error;
+
+  // No token, a wrong one, a prefix of the right one: refused, and each says why.
+  for (const std::string& token :
+       {std::string(), std::string("wrong-token-wrong-token"), std::string("0123456789abcdef")}) {
+    auto connection = slproto::connect("127.0.0.1", daemon_->port(), 5s);
+    ASSERT_TRUE(connection.ok());
+    auto reply = slproto::client_handshake(*connection, slproto::make_hello("test", "0", 0, token));
+    ASSERT_FALSE(reply.ok()) << "token '" << token << "' was accepted";
+    EXPECT_EQ(reply.error().code, slproto::Errc::unauthorized);
+  }
+  EXPECT_EQ(wait_for_failed_handshakes(5), 5u);
+  // The right token: the daemon serves the scan after all of that.
+  slproto::Connection c = connect("0123456789abcdef-token");
+  expect_next_scan_runs(c, 110);
+}
+
+TEST_F(DaemonFixture, ConnectionsBeyondTheLimitAreToldBusyAndTheHolderKeepsScanning) {
+  start(20000, {}, {}, [](DaemonOptions& options) { options.max_connections = 2; });
+  slproto::Connection c = connect();
+  // One silent connection fills the second slot (it is dropped at the handshake timeout).
+  const int silent = raw_connect(daemon_->port());
+  ASSERT_GE(silent, 0);
+  std::this_thread::sleep_for(200ms);
+  auto third = slproto::connect("127.0.0.1", daemon_->port(), 5s);
+  ASSERT_TRUE(third.ok());
+  auto reply = slproto::client_handshake(*third, slproto::make_hello("third", "0"));
+  ASSERT_FALSE(reply.ok());
+  EXPECT_EQ(reply.error().code, slproto::Errc::busy) << reply.error().message;
+  EXPECT_NE(reply.error().message.find("connections (the limit)"), std::string::npos) << reply.error().message;
+  ::close(silent);
+  expect_next_scan_runs(c, 120);
+}
+
+TEST_F(DaemonFixture, ScanPlanLimitsAreEnforced) {
+  start();
+  slproto::Connection c = connect();
+  auto refused = [&](pb::ScanRequest r, const std::string& expected) {
+    ASSERT_TRUE(c.send(r).ok());
+    const Received got = receive_scan(c);
+    ASSERT_TRUE(got.done.has_value());
+    EXPECT_EQ(got.done->final_state(), pb::SCAN_STATE_FAILED);
+    ASSERT_EQ(got.errors.size(), 1u);
+    EXPECT_NE(got.errors[0].text().find(expected), std::string::npos) << got.errors[0].text();
+    EXPECT_TRUE(got.frames.empty());
+  };
+  pb::ScanRequest many = request(120, 1);
+  for (int v = 1; v <= kMaxScanViews; ++v) many.add_turntable_angles_deg(0.5 * v);
+  refused(many, "views (turntable_angles_deg) 361 is over the limit of 360");
+  pb::ScanRequest long_exposure = request(121, 1);
+  long_exposure.set_exposure_us(kMaxExposureUs + 1);
+  long_exposure.set_pattern_period_us(kMaxPatternPeriodUs);
+  refused(long_exposure, "exposure_us 1000001 is over the limit");
+  pb::ScanRequest long_settle = request(122, 1);
+  long_settle.set_settle_ms(kMaxSettleMs + 1);
+  refused(long_settle, "settle_ms 60001 is over the limit");
+  EXPECT_EQ(daemon_->stats().scans_refused, 3u);
+  expect_next_scan_runs(c, 123);
+}
+
+TEST(DaemonPolicy, NetworkAddressNeedsATokenOrAnExplicitOptOut) {
+  auto board = hal::load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml");
+  ASSERT_TRUE(board.ok());
+  auto attempt = [&](const std::string& address, const std::string& token, bool insecure) {
+    auto devices = hal::open_board_devices(*board);
+    EXPECT_TRUE(devices.ok());
+    DaemonOptions options;
+    options.bind_address = address;
+    options.port = 0;
+    options.realtime = false;
+    options.auth_token = token;
+    options.insecure_no_token = insecure;
+    return Daemon::create(*board, std::move(*devices), options);
+  };
+  auto refused = attempt("0.0.0.0", "", false);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.error().code, slproto::Errc::unauthorized);
+  EXPECT_NE(refused.error().message.find("refusing to listen on 0.0.0.0 without a token"), std::string::npos);
+  EXPECT_TRUE(attempt("0.0.0.0", "0123456789abcdef-token", false).ok());
+  EXPECT_TRUE(attempt("0.0.0.0", "", true).ok());
+  EXPECT_TRUE(attempt("127.0.0.1", "", false).ok());
 }

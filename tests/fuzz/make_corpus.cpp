@@ -1,13 +1,20 @@
 // Writes the seed corpora of the fuzz targets (committed under tests/fuzz/corpus/):
-//   make_fuzz_corpus <output dir>   -> <dir>/frame_decoder/*, <dir>/capture_reader/*
+//   make_fuzz_corpus <output dir>   -> <dir>/frame_decoder/*, <dir>/capture_reader/*,
+//   <dir>/pattern_plan/*, <dir>/calibration_file/* and, with the virtual rig, <dir>/scene_file/*.
+// The other targets' seeds (board files, meshes, PLY, turntable transcripts, manifests) are
+// small hand-written or copied files committed as they are.
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <string>
 
 #include "../shared/sample_messages.hpp"
+#include "slproto/calibration.hpp"
 #include "slproto/capture.hpp"
 #include "slproto/framing.hpp"
+#if defined(SLSCAN_FUZZ_CORPUS_RIG)
+#include "slrig/rig.hpp"
+#endif
 
 namespace {
 
@@ -16,6 +23,11 @@ using namespace slproto;
 void write_file(const std::filesystem::path& path, std::span<const std::byte> bytes) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+}
+
+void write_text(const std::filesystem::path& path, const std::string& text) {
+  std::filesystem::create_directories(path.parent_path());
+  write_file(path, std::as_bytes(std::span(text)));
 }
 
 }  // namespace
@@ -60,6 +72,23 @@ int main(int argc, char** argv) {
   capture.insert(capture.end(), stream.begin(), stream.end());
   write_file(capture_dir / "all_types", capture);
   write_file(capture_dir / "cut_in_frame", std::span(capture).first(capture.size() - 200));
+  PatternPlanConfig plan;
+  write_text(root / "pattern_plan" / "default", format_pattern_plan(plan));
+  plan.axis = CodingAxis::rows;
+  plan.inverse_gray = true;
+  write_text(root / "pattern_plan" / "rows_inverse_gray", format_pattern_plan(plan));
+  plan.phase_steps = 0;
+  plan.gray_low_bits = GrayLowBits::slstudio_parity;
+  write_text(root / "pattern_plan" / "gray_only_slstudio", format_pattern_plan(plan));
+
+#if defined(SLSCAN_FUZZ_CORPUS_RIG)
+  for (const char* name : {"sphere", "ballbar"}) {
+    auto scene = slrig::scene_preset(name, slrig::RigSize::small);
+    if (!scene) return 1;
+    write_text(root / "scene_file" / name, slrig::format_scene(*scene));
+    write_text(root / "calibration_file" / name, format_calibration(slrig::ground_truth_calibration(*scene)));
+  }
+#endif
   std::printf("corpus written to %s\n", root.c_str());
   return 0;
 }

@@ -169,6 +169,40 @@ TEST_F(Reprocess, CorruptCaptureAndWrongCalibrationAreRefusedClearly) {
     FAIL() << "a capture was reconstructed with a calibration for another plan";
   } catch (const io::IoError& e) {
     EXPECT_NE(std::string(e.what()).find("pattern plan"), std::string::npos) << e.what();
+    // Names what differs, with both values, not only both plans.
+    EXPECT_NE(std::string(e.what()).find("period_px 8 in the capture, 16 in the calibration"), std::string::npos)
+        << e.what();
+    EXPECT_EQ(std::string(e.what()).find("phase_steps"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "other" / "model.ply"));
+}
+
+TEST_F(Reprocess, CorruptCalibrationFileIsRefusedNamingFileAndField) {
+  const std::string good = slproto::format_calibration(slrig::ground_truth_calibration(*scene_));
+  struct Case {
+    std::string name, text, expected;
+  };
+  std::string no_camera = good;
+  no_camera.replace(no_camera.find("\"camera\""), 8, "\"kamera\"");
+  const std::vector<Case> cases = {
+      {"cut.json", good.substr(0, good.size() / 2), "not valid JSON"},
+      {"empty.json", "", "not valid JSON"},
+      {"no_camera.json", no_camera, "camera"},
+      {"huge_number.json", "{\"camera\": 1e999999}", "not valid JSON"},
+  };
+  for (const Case& c : cases) {
+    const fs::path path = dir_ / c.name;
+    std::ofstream(path) << c.text;
+    ReprocessRequest r = request((dir_ / "scan.slcap").string(), "corrupt_" + c.name);
+    r.calibration_path = path.string();
+    try {
+      (void)run_reprocess(r, console_);
+      ADD_FAILURE() << c.name << " was accepted as a calibration";
+    } catch (const io::IoError& e) {
+      EXPECT_NE(std::string(e.what()).find(path.string()), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(c.expected), std::string::npos) << c.name << ": " << e.what();
+    }
+    EXPECT_FALSE(fs::exists(dir_ / ("corrupt_" + c.name)));
   }
 }
 

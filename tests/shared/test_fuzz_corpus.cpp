@@ -7,6 +7,7 @@
 #include <iterator>
 
 #include "../fuzz/fuzz_checks.hpp"
+#include "../fuzz/fuzz_text_checks.hpp"
 
 namespace {
 
@@ -35,6 +36,11 @@ TEST(FuzzCorpus, FrameDecoderSeedsPassTheProperties) {
 
 TEST(FuzzCorpus, CaptureReaderSeedsPassTheProperties) {
   EXPECT_GE(replay("capture_reader", slproto::fuzz::check_capture_reader), 3u);
+}
+
+TEST(FuzzCorpus, PatternPlanAndCalibrationSeedsPassTheProperties) {
+  EXPECT_GE(replay("pattern_plan", slproto::fuzz::check_pattern_plan_text), 3u);
+  EXPECT_GE(replay("calibration_file", slproto::fuzz::check_calibration_text), 2u);
 }
 
 TEST(FuzzCorpus, SeedsDecodeAsIntended) {

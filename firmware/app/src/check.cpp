@@ -11,6 +11,7 @@
 
 #include "slproto/transport.hpp"
 #include "slscand/app/config.hpp"
+#include "slscand/app/security.hpp"
 #include "slscand/hal/backends.hpp"
 #include "slscand/hal/turntable.hpp"
 #if defined(SLSCAND_HAVE_SIM)

@@ -85,24 +85,4 @@ slproto::Result<DaemonConfig> load_daemon_config(const std::string& path) {
   return parse_daemon_config(text.str(), path);
 }
 
-slproto::Result<std::string> read_token_file(const std::string& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0)
-    return make_error(Errc::io_error, "token file " + path + ": " + std::strerror(errno));
-  if (!S_ISREG(st.st_mode)) return make_error(Errc::invalid_argument, "token file " + path + ": not a regular file");
-  if ((st.st_mode & 077) != 0) {
-    char mode[8];
-    std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(st.st_mode & 07777));
-    return make_error(Errc::unauthorized, "token file " + path + " has mode " + mode +
-                                              ": group and others must have no access (chmod 600 " + path + ")");
-  }
-  std::ifstream in(path);
-  if (!in) return make_error(Errc::io_error, "token file " + path + ": cannot read: " + std::strerror(errno));
-  std::string token;
-  std::getline(in, token);
-  while (!token.empty() && std::isspace(static_cast<unsigned char>(token.back()))) token.pop_back();
-  if (token.empty()) return make_error(Errc::invalid_argument, "token file " + path + " is empty");
-  return token;
-}
-
 }  // namespace slscand

@@ -1,10 +1,13 @@
 #include "slscand/app/daemon.hpp"
 
 #include <cstdio>
+#include <optional>
 #include <thread>
+#include <vector>
 
 #include "slproto/calibration.hpp"
 #include "slproto/handshake.hpp"
+#include "slscand/app/security.hpp"
 #include "slscand/sequencer/realtime.hpp"
 #if defined(SLSCAND_HAVE_SIM)
 #include "slscand/hal/sim/sim_rig.hpp"
@@ -61,6 +64,9 @@ slproto::Result<std::unique_ptr<Daemon>> Daemon::create(hal::BoardConfig board, 
                                                         DaemonOptions options) {
   const std::string address = options.bind_address.empty() ? board.bind_address : options.bind_address;
   const int port = options.port < 0 ? board.port : options.port;
+  if (auto policy = check_listen_policy(address, !options.auth_token.empty(), options.insecure_no_token); !policy)
+    return policy.error();
+  options.connection.limits = kHostMessageLimits;
   if (port > 65535) return make_error(Errc::invalid_argument, "port " + std::to_string(port) + " is out of range");
   slproto::ServerOptions server_options;
   server_options.connection = options.connection;
@@ -90,35 +96,93 @@ DaemonStats Daemon::stats() const {
 }
 
 void Daemon::serve() {
-  std::thread primary;
+  // Every connection gets its own thread: a silent or slow peer (handshake timeout) must not
+  // hold up the accept loop, the scanning host, or a status question. The scanner itself is
+  // claimed only by a host that has passed the handshake, so a silent connection cannot make
+  // the daemon refuse the real host (docs/security.md).
+  struct Worker {
+    std::thread thread;
+    std::shared_ptr<std::atomic<bool>> finished;
+  };
+  std::vector<Worker> workers;
+  auto reap = [&workers](bool all) {
+    for (auto it = workers.begin(); it != workers.end();) {
+      if (all || it->finished->load()) {
+        it->thread.join();
+        it = workers.erase(it);
+      } else {
+        ++it;
+      }
+    }
+  };
   while (!stop_) {
     auto connection = server_.accept(100ms);
+    reap(false);
     if (!connection) continue;  // timeout, or a client that vanished during accept
     {
       std::lock_guard lock(stats_mutex_);
       stats_.connections++;
     }
-    for (auto waited = 0ms; primary_active_ && waited < kPrimaryGrace && !stop_; waited += 10ms)
-      std::this_thread::sleep_for(10ms);
-    if (primary_active_) {
-      // Served on the accept thread: the primary host's scan runs on its own thread meanwhile.
-      handle_status_only(*connection);
+    if (workers.size() >= options_.max_connections) {
+      const std::string why = "busy: slscand already serves " + std::to_string(workers.size()) +
+                              " connections (the limit); try again later";
+      std::fprintf(stderr, "slscand: turned away %s: %s\n", connection->peer_address().c_str(), why.c_str());
+      (void)connection->send(slproto::to_proto(make_error(Errc::busy, why), 0, /*fatal=*/true), 200ms);
       connection->close();
+      std::lock_guard lock(stats_mutex_);
+      stats_.connections_turned_away++;
       continue;
     }
-    if (primary.joinable()) primary.join();
-    {
-      std::lock_guard lock(primary_mutex_);
-      primary_peer_ = connection->peer_address();
-    }
-    primary_active_ = true;
-    primary = std::thread([this, c = std::move(*connection)]() mutable {
-      handle_connection(c);
+    auto finished = std::make_shared<std::atomic<bool>>(false);
+    std::thread thread([this, finished, c = std::move(*connection)]() mutable {
+      serve_connection(c);
       c.close();
-      primary_active_ = false;
+      *finished = true;
     });
+    workers.push_back(Worker{std::move(thread), std::move(finished)});
   }
-  if (primary.joinable()) primary.join();
+  reap(true);
+}
+
+bool Daemon::try_claim_scanner(std::chrono::milliseconds grace, const std::string& peer) {
+  for (auto waited = 0ms;; waited += 10ms) {
+    bool expected = false;
+    if (primary_active_.compare_exchange_strong(expected, true)) {
+      std::lock_guard lock(primary_mutex_);
+      primary_peer_ = peer;
+      return true;
+    }
+    if (waited >= grace || stop_) return false;
+    std::this_thread::sleep_for(10ms);
+  }
+}
+
+void Daemon::release_scanner() {
+  {
+    std::lock_guard lock(primary_mutex_);
+    primary_peer_.clear();
+  }
+  primary_active_ = false;
+}
+
+void Daemon::serve_connection(slproto::Connection& connection) {
+  const std::uint32_t negotiated = handshake(connection);
+  if (negotiated == 0) return;
+  const std::string peer = connection.peer_address();
+  if (!try_claim_scanner(0ms, peer)) {
+    // Another host has the scanner: status questions are answered at once. Only a scan request
+    // tries again to claim it (the other host may just have left).
+    auto request = handle_status_only(connection, negotiated);
+    if (!request) return;
+    negotiated_ = negotiated;
+    const bool connected = run_scan(connection, *request);
+    if (connected) handle_connection(connection, negotiated);
+    release_scanner();
+    return;
+  }
+  negotiated_ = negotiated;
+  handle_connection(connection, negotiated);
+  release_scanner();
 }
 
 std::uint64_t Daemon::capabilities() const {
@@ -138,8 +202,14 @@ std::uint32_t Daemon::handshake(slproto::Connection& connection) {
   identity.camera.set_model(devices_.camera->describe());
   identity.projector_count = 2;
   identity.auth_token = options_.auth_token;
-  auto hello = slproto::server_handshake(connection, identity);
-  if (!hello) return 0;
+  auto hello = slproto::server_handshake(connection, identity, options_.handshake_timeout);
+  if (!hello) {
+    std::fprintf(stderr, "slscand: %s\n", hello.error().message.c_str());
+    std::lock_guard lock(stats_mutex_);
+    stats_.handshakes_failed++;
+    stats_.last_error = hello.error().message;
+    return 0;
+  }
   return std::min<std::uint32_t>(hello->protocol_version(), identity.versions.max);
 }
 
@@ -166,43 +236,55 @@ pb::StatusReply Daemon::status_reply(std::uint32_t negotiated) const {
   return reply;
 }
 
-void Daemon::handle_status_only(slproto::Connection& connection) {
-  const std::uint32_t negotiated = handshake(connection);
-  if (negotiated == 0) return;
+std::string Daemon::busy_reason() const {
+  std::string holder;
+  {
+    std::lock_guard lock(primary_mutex_);
+    holder = primary_peer_.empty() ? std::string("another host") : primary_peer_;
+  }
+  return scanning_ ? "busy: scan in progress for " + holder
+                   : "busy: host " + holder + " is connected (one host at a time)";
+}
+
+std::optional<pb::ScanRequest> Daemon::handle_status_only(slproto::Connection& connection, std::uint32_t negotiated) {
   const auto deadline = std::chrono::steady_clock::now() + kStatusOnlyLifetime;
   while (!stop_ && std::chrono::steady_clock::now() < deadline) {
     auto message = connection.receive(100ms);
     if (!message) {
       if (message.error().code == Errc::timeout) continue;
-      return;
+      return std::nullopt;
     }
     if (message->get<pb::StatusRequest>() != nullptr) {
-      if (!connection.send(status_reply(negotiated))) return;
-    } else if (const auto* request = message->get<pb::ScanRequest>()) {
-      std::string peer;
-      {
-        std::lock_guard lock(primary_mutex_);
-        peer = primary_peer_;
-      }
-      (void)connection.send(slproto::to_proto(
-          make_error(Errc::busy, "another host (" + peer + ") is using the scanner; slscand serves one host at a time"),
-          request->scan_id(), /*fatal=*/true));
-      return;
-    } else if (message->get<pb::Error>() == nullptr) {
-      (void)connection.send(slproto::to_proto(
-          make_error(Errc::busy, std::string("another host is using the scanner: only status_request is "
-                                             "answered on this connection, not ") +
-                                     slproto::message_type_name(message->type())),
-          0));
+      if (!connection.send(status_reply(negotiated))) return std::nullopt;
+      continue;
     }
+    if (message->get<pb::Error>() != nullptr) continue;
+    std::uint64_t scan_id = 0;
+    if (const auto* request = message->get<pb::ScanRequest>()) {
+      // A host that reconnects just after leaving may get here before its old connection's
+      // receive loop has noticed the close: give the old one a moment to let go.
+      const pb::ScanRequest copy = *request;
+      if (try_claim_scanner(kPrimaryGrace, connection.peer_address())) return copy;
+      scan_id = copy.scan_id();
+    } else if (const auto* abort = message->get<pb::Abort>()) {
+      scan_id = abort->scan_id();
+    }
+    // A scan request or an abort from a second host: it cannot touch the scanner.
+    const std::string why = busy_reason();
+    std::fprintf(stderr, "slscand: turned away %s (%s): %s\n", connection.peer_address().c_str(),
+                 slproto::message_type_name(message->type()), why.c_str());
+    {
+      std::lock_guard lock(stats_mutex_);
+      stats_.connections_turned_away++;
+    }
+    (void)connection.send(slproto::to_proto(make_error(Errc::busy, why + "; this connection may only ask for status"),
+                                            scan_id, /*fatal=*/true));
+    return std::nullopt;
   }
+  return std::nullopt;
 }
 
-void Daemon::handle_connection(slproto::Connection& connection) {
-  const std::uint32_t negotiated = handshake(connection);
-  if (negotiated == 0) return;
-  negotiated_ = negotiated;
-
+void Daemon::handle_connection(slproto::Connection& connection, std::uint32_t negotiated) {
   while (!stop_) {
     auto message = connection.receive(100ms);
     if (!message) {

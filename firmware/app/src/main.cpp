@@ -1,5 +1,6 @@
 // slscand: the scanner board's daemon.
-//   slscand --board boards/sim.toml [--port N] [--bind ADDR] [--timing-log DIR] [--token T]
+//   slscand --board boards/sim.toml [--port N] [--bind ADDR] [--timing-log DIR] [--token-file F]
+//           [--insecure-no-token] [--no-mdns]
 //   slscand --config /etc/slscan/slscand.toml [options above override it]
 //   slscand --config FILE | --board FILE --check
 //   slscand --board boards/sim.toml --timing-report [--views N] [--exposure-us E] [--period-us P]
@@ -22,6 +23,7 @@
 #include "slscand/app/check.hpp"
 #include "slscand/app/config.hpp"
 #include "slscand/app/daemon.hpp"
+#include "slscand/app/security.hpp"
 #include "slscand/sequencer/realtime.hpp"
 
 namespace {
@@ -34,14 +36,18 @@ void on_signal(int) {
 
 void usage(std::FILE* out) {
   std::fputs(
-      "usage: slscand --board FILE [--port N] [--bind ADDR] [--timing-log DIR] [--token TOKEN] [--no-realtime]\n"
+      "usage: slscand --board FILE [--port N] [--bind ADDR] [--timing-log DIR] [--token-file FILE]\n"
+      "               [--insecure-no-token] [--no-realtime] [--no-mdns]\n"
       "       slscand --config FILE [the options above override the file's]\n"
       "       slscand (--config FILE | --board FILE) --check\n"
-      "--no-mdns: do not announce the scanner with mDNS/DNS-SD (avahi-daemon)\n"
       "       slscand --board FILE --timing-report [--views N] [--exposure-us E] [--period-us P]\n"
       "       slscand --list-backends\n"
       "Serves scans to one host at a time over slproto (TCP). --timing-report runs one scan on the\n"
       "board locally (use the sim board for a machine without hardware) and prints its timing.\n"
+      "It listens on loopback unless --bind or the board file's bind_address say otherwise; any\n"
+      "other address needs --token-file (a file of mode 600 holding the hosts' shared token) or\n"
+      "an explicit --insecure-no-token (docs/security.md). It announces itself with mDNS/DNS-SD\n"
+      "(avahi-daemon) unless it listens on loopback or --no-mdns is given.\n"
       "--check reports each device, permission and setting the board needs, present or missing with\n"
       "the fix, and exits 0 only if nothing is missing.\n",
       out);
@@ -111,9 +117,10 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string board_path, bind, timing_dir, token, config_path;
+  std::string board_path, bind, timing_dir, token_file, config_path;
   long port = -1, views = 6, exposure_us = 0, period_us = 0;
   bool report = false, realtime = true, check = false, bind_given = false, realtime_given = false, mdns = true;
+  bool insecure_no_token = false;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&](const char* name) -> const char* {
@@ -135,8 +142,10 @@ int main(int argc, char** argv) {
       bind = value("--bind"), bind_given = true;
     else if (arg == "--timing-log")
       timing_dir = value("--timing-log");
-    else if (arg == "--token")
-      token = value("--token");
+    else if (arg == "--token-file")
+      token_file = value("--token-file");
+    else if (arg == "--insecure-no-token")
+      insecure_no_token = true;
     else if (arg == "--timing-report")
       report = true;
     else if (arg == "--no-realtime")
@@ -164,7 +173,6 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  std::string token_file;
   if (!config_path.empty()) {
     // The configuration fills in what the command line left out.
     auto config = slscand::load_daemon_config(config_path);
@@ -178,7 +186,7 @@ int main(int argc, char** argv) {
     if (timing_dir.empty()) timing_dir = config->timing_log_dir;
     if (!realtime_given && config->realtime) realtime = *config->realtime;
     if (config->mdns && !*config->mdns) mdns = false;
-    token_file = config->token_file;
+    if (token_file.empty()) token_file = config->token_file;
   }
   if (board_path.empty()) {
     std::fprintf(stderr, "slscand: --board (or --config with a board) is required\n");
@@ -194,20 +202,33 @@ int main(int argc, char** argv) {
     slscand::CheckOptions options;
     options.bind_address = bind;
     options.port = static_cast<int>(port);
-    options.token_file = token.empty() ? token_file : std::string();
-    options.token_given = !token.empty();
+    options.token_file = token_file;
+    options.token_given = false;
     options.realtime = realtime;
     const slscand::CheckReport result = slscand::check_board(*board, options);
     std::fputs(result.to_text().c_str(), stdout);
     return result.all_ok() ? 0 : 1;
   }
-  if (token.empty() && !token_file.empty()) {
-    auto loaded = slscand::read_token_file(token_file);
-    if (!loaded) {
-      std::fprintf(stderr, "slscand: %s (token_file in %s)\n", loaded.error().message.c_str(), config_path.c_str());
+  // The network policy before any device is opened: a refused start touches no hardware.
+  std::string token;
+  if (!report) {
+    if (!token_file.empty()) {
+      auto read = slscand::read_token_file(token_file);
+      if (!read) {
+        std::fprintf(stderr, "slscand: %s\n", read.error().message.c_str());
+        return 2;
+      }
+      token = std::move(*read);
+    }
+    const std::string address = bind.empty() ? board->bind_address : bind;
+    if (auto policy = slscand::check_listen_policy(address, !token.empty(), insecure_no_token); !policy) {
+      std::fprintf(stderr, "slscand: %s\n", policy.error().message.c_str());
       return 2;
     }
-    token = std::move(*loaded);
+    if (token.empty() && !slscand::is_loopback_address(address)) {
+      std::fprintf(stderr, "slscand: warning: --insecure-no-token: anyone who can reach %s can drive the scanner\n",
+                   address.c_str());
+    }
   }
   auto devices = slscand::hal::open_board_devices(*board);
   if (!devices) {

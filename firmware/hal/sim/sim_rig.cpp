@@ -98,6 +98,7 @@ struct SimRig::Core {
   Nanos camera_exposure_ns = 0;
   std::uint64_t camera_generation = 0;
   std::uint64_t camera_sequence = 0;
+  std::uint64_t fault_base_sequence = 0;  // camera_sequence when the faults were set
   std::deque<CameraJob> jobs;
   std::deque<Frame> frames;
   std::vector<ExposureRecord> exposures;
@@ -270,6 +271,9 @@ void SimRig::Core::on_camera_trigger(Nanos now) {
     const Nanos readout_done = job.end_ns + static_cast<Nanos>(board.readout_us * kMicro);
     schedule(readout_done, [this, generation, job](Nanos) {
       if (generation != camera_generation || faults.camera_silent) return;
+      if (faults.drop_frame_after >= 0 &&
+          job.sequence == fault_base_sequence + static_cast<std::uint64_t>(faults.drop_frame_after))
+        return;
       jobs.push_back(job);
       camera_cv.notify_all();
     });
@@ -343,6 +347,8 @@ void SimRig::Core::run_camera() {
     const std::uint64_t generation = camera_generation;
     const CameraFormat frame_format = format;
     std::optional<slproto::PatternPlan> frame_plan = plan;
+    const bool short_frame = faults.short_frame_after >= 0 &&
+                             job.sequence == fault_base_sequence + static_cast<std::uint64_t>(faults.short_frame_after);
     lock.unlock();
 
     ensure_renderer(table->angle_deg());
@@ -358,6 +364,7 @@ void SimRig::Core::run_camera() {
       renderer->render(static_cast<slproto::ProjectorSide>(job.side), static_cast<std::size_t>(job.pattern_index),
                        frame.pixels);
     }
+    if (short_frame) frame.pixels.resize(frame.pixels.size() / 2);
     frame.sequence = job.sequence;
     frame.exposure_start_ns = job.start_ns;
     frame.exposure_end_ns = job.end_ns;
@@ -534,6 +541,7 @@ void SimRig::load_patterns(const slproto::PatternPlan& plan, Nanos exposure_ns) 
 void SimRig::set_faults(const SimFaults& faults) {
   std::lock_guard lock(core_->mutex);
   core_->faults = faults;
+  core_->fault_base_sequence = core_->camera_sequence;
 }
 
 std::vector<RecordedEdge> SimRig::recorded_edges() const {

@@ -1,5 +1,7 @@
 #include "slscand/hal/board.hpp"
 
+#include <algorithm>
+#include <cstdio>
 #include <map>
 #include <set>
 // Header-only and without exceptions: the firmware reports errors as values, and the board
@@ -14,6 +16,59 @@ using slproto::Errc;
 using slproto::make_error;
 
 namespace {
+
+bool is_bare_key_char(char c) {
+  return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
+}
+
+// Two inputs on which toml++ 3.3 (Debian 12) reaches undefined behaviour, both found by the
+// board file fuzzer (tests/fuzz/corpus/board_file/crash-*), are refused before toml++ sees them:
+// - a non-ASCII character where it tests for whitespace: its generated Unicode tables end in
+//   __builtin_unreachable() for some code points ("2" + U+030C). Board files are ASCII.
+// - a table header whose '[' is not followed by a key ("[#", "[[[x]]"): an assertion in debug
+//   builds, an assumption (so undefined behaviour) in clang release builds. A line of a
+//   multi-line nested array could start the same way; no board key takes one.
+slproto::Status check_toml_input(const std::string& text, const std::string& source_name) {
+  std::size_t line_start = 0;
+  for (int line = 1; line_start < text.size(); ++line) {
+    const std::size_t line_end = std::min(text.find('\n', line_start), text.size());
+    for (std::size_t c = line_start; c < line_end; ++c) {
+      if (static_cast<unsigned char>(text[c]) >= 0x80) {
+        char byte[8];
+        std::snprintf(byte, sizeof byte, "0x%02X", static_cast<unsigned char>(text[c]));
+        return make_error(Errc::malformed, source_name + ":" + std::to_string(line) + ":" +
+                                               std::to_string(c - line_start + 1) + ": non-ASCII byte " + byte +
+                                               " (board files are ASCII, comments included)");
+      }
+    }
+    std::size_t i = line_start;
+    auto skip_blanks = [&] {
+      while (i < line_end && (text[i] == ' ' || text[i] == '\t')) ++i;
+    };
+    skip_blanks();
+    if (i < line_end && text[i] == '[') {
+      // The same steps as toml++'s parse_table_header: '[', blanks, an optional second '['
+      // (toml++ itself refuses "[ [") and blanks, then the name.
+      ++i;
+      const std::size_t after_bracket = i;
+      skip_blanks();
+      bool array_header = false;
+      if (i < line_end && text[i] == '[' && i == after_bracket) {
+        array_header = true;
+        ++i;
+        skip_blanks();
+      }
+      const bool name_follows = i < line_end && (is_bare_key_char(text[i]) || text[i] == '"' || text[i] == '\'' ||
+                                                 text[i] == ']' || (text[i] == '[' && !array_header));
+      if (!name_follows) {
+        return make_error(Errc::malformed, source_name + ":" + std::to_string(line) +
+                                               ": a table header '[' must be followed by a table name");
+      }
+    }
+    line_start = line_end + 1;
+  }
+  return slproto::Ok{};
+}
 
 // Reads typed fields out of a toml table, remembering the first problem with its dotted name.
 class FieldReader {
@@ -190,6 +245,7 @@ slproto::Status BoardConfig::check() const {
 }
 
 slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std::string& source_name) {
+  if (auto input = check_toml_input(toml_text, source_name); !input) return input.error();
   toml::parse_result parsed = toml::parse(toml_text, source_name);
   if (!parsed) {
     const auto& err = parsed.error();

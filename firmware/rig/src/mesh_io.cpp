@@ -246,13 +246,14 @@ slproto::Result<std::vector<Triangle>> parse_ply(const std::string& path, const 
           if (!read_one(p.type, values[k])) return make_error(Errc::truncated, where + " ends early");
         } else {
           double count;
-          if (!read_one(p.count_type, count) || count < 0 || count > 1000)
+          // Written so that NaN fails too (a NaN count or index would be cast to an int).
+          if (!read_one(p.count_type, count) || !(count >= 0 && count <= 1000))
             return make_error(Errc::malformed, where + ": bad list length");
           for (int c = 0; c < static_cast<int>(count); ++c) {
             double v;
             if (!read_one(p.type, v)) return make_error(Errc::truncated, where + " ends early");
             if (static_cast<int>(k) == ilist) {
-              if (v < 0 || v >= static_cast<double>(vertices.size()))
+              if (!(v >= 0 && v < static_cast<double>(vertices.size())))
                 return make_error(Errc::malformed, where + ": vertex index " + std::to_string(v) + " out of range");
               face.push_back(static_cast<std::size_t>(v));
             }

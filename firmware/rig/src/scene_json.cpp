@@ -335,7 +335,7 @@ slproto::Result<Scene> parse_scene(std::string_view json_text, std::string_view 
     json root;
     try {
       root = json::parse(json_text);
-    } catch (const json::parse_error& e) {
+    } catch (const json::exception& e) {  // parse_error, and out_of_range for a number beyond double
       return slproto::make_error(Errc::malformed, origin_str + ": not valid JSON (" + e.what() + ")");
     }
     Scene scene;

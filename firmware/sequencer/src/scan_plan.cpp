@@ -26,6 +26,19 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
                       "scan " + std::to_string(request.scan_id()) + " refused by board '" + board.name + "': " + why);
   };
   if (auto s = slproto::check_scan_request(request, 2); !s) return refuse(s.error().code, s.error().message);
+  auto over = [&](const char* field, std::uint64_t value, std::uint64_t limit) {
+    return refuse(Errc::invalid_argument,
+                  std::string(field) + " " + std::to_string(value) + " is over the limit of " + std::to_string(limit));
+  };
+  if (request.turntable_angles_deg_size() > kMaxScanViews)
+    return over("views (turntable_angles_deg)", static_cast<std::uint64_t>(request.turntable_angles_deg_size()),
+                kMaxScanViews);
+  if (request.exposure_us() > kMaxExposureUs) return over("exposure_us", request.exposure_us(), kMaxExposureUs);
+  if (request.pattern_period_us() > kMaxPatternPeriodUs)
+    return over("pattern_period_us", request.pattern_period_us(), kMaxPatternPeriodUs);
+  if (request.trigger_delay_us() > kMaxTriggerDelayUs)
+    return over("trigger_delay_us", request.trigger_delay_us(), kMaxTriggerDelayUs);
+  if (request.settle_ms() > kMaxSettleMs) return over("settle_ms", request.settle_ms(), kMaxSettleMs);
   auto config = slproto::from_proto(request.plan());
   if (!config) return refuse(Errc::invalid_argument, config.error().message);
   auto patterns = slproto::PatternPlan::make(*config);

@@ -176,6 +176,23 @@ ScanOutcome Sequencer::run(const ScanPlan& plan, BoundedQueue<SequencedFrame>& o
                                                  " frame(s) before frame " + std::to_string(frame->sequence))};
             }
             last_camera_sequence = frame->sequence;
+            // A frame of another size would stream as garbage or desynchronise the host's decode.
+            if (frame->format.width != devices_.camera_format.width ||
+                frame->format.height != devices_.camera_format.height ||
+                frame->format.pixel_format != devices_.camera_format.pixel_format ||
+                frame->pixels.size() != frame->format.frame_bytes()) {
+              return Failure{
+                  pb::SCAN_STATE_FAILED,
+                  make_error(Errc::hardware,
+                             "camera frame " + std::to_string(frame->sequence) + " is " +
+                                 std::to_string(frame->format.width) + " x " + std::to_string(frame->format.height) +
+                                 " " + hal::pixel_format_name(frame->format.pixel_format) + " with " +
+                                 std::to_string(frame->pixels.size()) + " bytes; expected " +
+                                 std::to_string(devices_.camera_format.width) + " x " +
+                                 std::to_string(devices_.camera_format.height) + " " +
+                                 hal::pixel_format_name(devices_.camera_format.pixel_format) + " with " +
+                                 std::to_string(devices_.camera_format.frame_bytes()) + " bytes")};
+            }
             item.timing.exposure_start_ns = frame->exposure_start_ns;
             item.timing.exposure_end_ns = frame->exposure_end_ns;
             item.timing.dequeued_ns = frame->dequeued_ns;

@@ -237,8 +237,10 @@ BallBarResult measure_ball_bar(const PointCloud& cloud, const BallBarOptions& op
     auto [fit, inliers] = search.find(options.nominal_radii_mm[static_cast<std::size_t>(s)], names[s]);
     // Take the sphere (and whatever lies inside it or on its band) out of the second search.
     const double exclusion = fit.radius_mm + options.radius_tolerance_mm + options.ransac_band_mm;
+    // Captured by copy of the centre: clang 14 (the fuzz build) cannot capture a structured binding.
+    const Eigen::Vector3d centre = fit.centre;
     std::erase_if(candidates,
-                  [&](std::uint32_t i) { return (cloud.points[i].cast<double>() - fit.centre).norm() <= exclusion; });
+                  [&](std::uint32_t i) { return (cloud.points[i].cast<double>() - centre).norm() <= exclusion; });
     result.spheres[static_cast<std::size_t>(s)] = fit;
     result.sphere_points[static_cast<std::size_t>(s)] = std::move(inliers);
   }

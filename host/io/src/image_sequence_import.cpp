@@ -82,7 +82,7 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
   json doc;
   try {
     doc = json::parse(json_text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, and out_of_range for a number beyond double
     fail(origin, std::string("not valid JSON: ") + e.what());
   }
   if (!doc.is_object()) fail(origin, "the description must be a JSON object");

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <bit>
 #include <charconv>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <sstream>
@@ -103,6 +104,22 @@ double read_binary(const char* p, PlyType t) {
 
 [[noreturn]] void fail(const std::string& path, const std::string& what) { throw IoError(path + ": " + what); }
 
+// Lists longer than this are not faces of any mesh we read: a corrupt count, refused before
+// it allocates.
+constexpr double kMaxListItems = 1024;
+
+std::size_t list_length(const std::string& path, const std::string& where, const std::string& name, double count) {
+  if (!(count >= 0 && count <= kMaxListItems) || count != std::floor(count))
+    fail(path, where + ": list '" + name + "' of " + std::to_string(count) + " items is implausible");
+  return static_cast<std::size_t>(count);
+}
+
+std::uint32_t list_index(const std::string& path, const std::string& where, const std::string& name, double value) {
+  if (!(value >= 0 && value <= 4294967295.0) || value != std::floor(value))
+    fail(path, where + ": list '" + name + "' has the item " + std::to_string(value) + ", not a vertex index");
+  return static_cast<std::uint32_t>(value);
+}
+
 }  // namespace
 
 int PlyTable::find(const std::string& name) const {
@@ -145,9 +162,14 @@ PlyTable read_ply_table(const std::string& path) {
     } else if (keyword == "element") {
       PlyElement element;
       long long count = -1;
-      words >> element.name >> count;
-      if (element.name.empty() || count < 0 || count > (1LL << 32))
+      // A count that does not parse leaves 0 in `count`, so the extraction itself is checked.
+      if (!(words >> element.name >> count) || count < 0 || count > (1LL << 32))
         fail(path, where + ": malformed element line '" + line + "'");
+      // The columns are the vertex element's: a second one would index past them.
+      for (const PlyElement& earlier : elements) {
+        if (earlier.name == element.name && (element.name == "vertex" || element.name == "face"))
+          fail(path, where + ": a second '" + element.name + "' element");
+      }
       element.count = static_cast<std::size_t>(count);
       elements.push_back(element);
     } else if (keyword == "property") {
@@ -177,6 +199,38 @@ PlyTable read_ply_table(const std::string& path) {
   if (!header_done) fail(path, "header has no end_header");
   if (format.empty()) fail(path, "header has no format line");
 
+  // The header's counts size the columns: a short corrupt header must not allocate gigabytes.
+  // Each record needs at least its fixed bytes (binary) or one character and a separator per
+  // value (ASCII), so the counts are checked against what the file still holds.
+  {
+    const std::streampos body = in.tellg();
+    in.seekg(0, std::ios::end);
+    const std::streamoff remaining = in.tellg() - body;
+    in.seekg(body);
+    if (!in || remaining < 0) fail(path, "cannot determine the file's size");
+    long double needed = 0;
+    for (const PlyElement& element : elements) {
+      long double per_record = 0;
+      bool all_fixed = true;
+      for (const auto& p : element.properties) {
+        per_record += format == "ascii" ? 2 : type_size(p.is_list ? p.count_type : p.type);
+        all_fixed = all_fixed && !p.is_list;
+      }
+      const long double before = needed;
+      needed += per_record * static_cast<long double>(element.count);
+      if (needed <= static_cast<long double>(remaining) + 1) continue;  // + 1: the last ASCII value needs no separator
+      const std::string promised = "the header promises at least " + std::to_string(static_cast<double>(needed)) +
+                                   " bytes of elements, the file has " + std::to_string(remaining) + " after it";
+      if (format != "ascii" && all_fixed && per_record > 0) {
+        const auto index = static_cast<std::size_t>(
+            std::max<long double>(0, static_cast<long double>(remaining) - before) / per_record);
+        fail(path, "file ends in " + element.name + " " + std::to_string(index) + " of " +
+                       std::to_string(element.count) + " (truncated: " + promised + ")");
+      }
+      fail(path, promised + " (truncated?)");
+    }
+  }
+
   for (const PlyElement& element : elements) {
     const bool is_vertex = element.name == "vertex";
     const bool is_face = element.name == "face";
@@ -204,11 +258,11 @@ PlyTable read_ply_table(const std::string& path) {
           double v = 0;
           if (!(values >> v)) fail(path, where + ": missing value for '" + prop.name + "'");
           if (prop.is_list) {
-            std::vector<std::uint32_t> items(static_cast<std::size_t>(v));
+            std::vector<std::uint32_t> items(list_length(path, where, prop.name, v));
             for (auto& item : items) {
               double x = 0;
               if (!(values >> x)) fail(path, where + ": short list '" + prop.name + "'");
-              item = static_cast<std::uint32_t>(x);
+              item = list_index(path, where, prop.name, x);
             }
             if (is_face) table.faces.push_back(std::move(items));
           } else if (is_vertex) {
@@ -232,19 +286,24 @@ PlyTable read_ply_table(const std::string& path) {
           if (!in.read(buffer, static_cast<std::streamsize>(size)))
             fail(path, "file ends in " + where + " (truncated)");
           if (!prop.is_list) continue;
-          const double count = read_binary(buffer, prop.count_type);
-          if (count < 0 || count > 1024)
-            fail(path, where + ": list of " + std::to_string(count) + " items is implausible");
-          std::vector<std::uint32_t> items(static_cast<std::size_t>(count));
+          std::vector<std::uint32_t> items(list_length(path, where, prop.name, read_binary(buffer, prop.count_type)));
           const std::size_t item_size = type_size(prop.type);
           for (auto& item : items) {
             if (!in.read(buffer, static_cast<std::streamsize>(item_size)))
               fail(path, "file ends in " + where + " (truncated)");
-            item = static_cast<std::uint32_t>(read_binary(buffer, prop.type));
+            item = list_index(path, where, prop.name, read_binary(buffer, prop.type));
           }
           if (is_face) table.faces.push_back(std::move(items));
         }
       }
+    }
+  }
+  // Faces may come before the vertices in the file; their indices are checked once both are read.
+  for (std::size_t f = 0; f < table.faces.size(); ++f) {
+    for (const std::uint32_t index : table.faces[f]) {
+      if (index >= table.vertex_count)
+        fail(path, "face " + std::to_string(f) + " names vertex " + std::to_string(index) + " but the file has " +
+                       std::to_string(table.vertex_count) + " vertices");
     }
   }
   return table;

@@ -24,8 +24,6 @@ struct DaemonConfig {
 slproto::Result<DaemonConfig> parse_daemon_config(const std::string& toml_text, const std::string& source_name);
 slproto::Result<DaemonConfig> load_daemon_config(const std::string& path);
 
-// Reads a token file: first line, trailing white space cut. Refuses a file that is missing,
-// empty, or readable or writable by group or others (mode & 077), naming the path and the fix.
-slproto::Result<std::string> read_token_file(const std::string& path);
+// Token files are read by read_token_file (security.hpp), which also checks their mode and owner.
 
 }  // namespace slscand

@@ -8,8 +8,10 @@
 #include <atomic>
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 
 #include "slproto/transport.hpp"
@@ -22,11 +24,21 @@ struct DaemonOptions {
   std::string bind_address;        // "" = the board's
   int port = -1;                   // -1 = the board's, 0 = any free port
   std::string timing_log_dir;      // "" = do not write timing logs on the board
-  std::string auth_token;          // "" = none required
+  std::string auth_token;          // "" = none required (refused on a non-loopback address...
+  bool insecure_no_token = false;  // ...unless this is set: security.hpp, check_listen_policy)
   std::size_t queue_capacity = 8;  // frames between the sequencer and the streamer
   bool realtime = true;            // SCHED_FIFO + mlockall if the board allows it
   slproto::ConnectionOptions connection;
+  // A connection must complete its hello within this (a silent or trickling peer is dropped).
+  std::chrono::milliseconds handshake_timeout{3000};
+  // Connections served at once (the scanning host, status questions, hellos in progress); one
+  // more is told "busy" and closed at once.
+  std::size_t max_connections = 4;
 };
+
+// What slscand accepts from a host (docs/security.md): a host sends only control messages, so
+// frames with pixel payloads are refused, and control messages are small.
+inline constexpr slproto::DecoderLimits kHostMessageLimits{64u << 10, 0};
 
 struct DaemonStats {
   std::uint64_t connections = 0;
@@ -35,6 +47,8 @@ struct DaemonStats {
   std::uint64_t scans_aborted = 0;
   std::uint64_t scans_failed = 0;
   std::uint64_t scans_refused = 0;
+  std::uint64_t handshakes_failed = 0;        // silent, wrong token, wrong version, garbage
+  std::uint64_t connections_turned_away = 0;  // a second host while one was served
   std::string last_error;
   // The last scan that ran (any ending): its timing report with every percentile (ScanDone
   // carries only mean/stddev/min/max/p99) and how often back-pressure paused the sequencer.
@@ -69,12 +83,23 @@ class Daemon {
 
  private:
   Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server);
-  void handle_connection(slproto::Connection& connection);
-  void handle_status_only(slproto::Connection& connection);
+  // One connection, on its own thread: the hello, then the scanner if no other host holds it,
+  // else a status-only connection.
+  void serve_connection(slproto::Connection& connection);
+  // The host that holds the scanner: scans, aborts, status.
+  void handle_connection(slproto::Connection& connection, std::uint32_t negotiated);
+  // Any other host: StatusRequest is answered; a ScanRequest or Abort gets Errc::busy naming
+  // the host that has the scanner, and the connection is closed. Returns the scan request if
+  // the scanner became free for it (this connection now holds it).
+  std::optional<slproto::pb::ScanRequest> handle_status_only(slproto::Connection& connection, std::uint32_t negotiated);
+  // Takes the scanner for `peer`, waiting up to `grace` for the holder to let go.
+  bool try_claim_scanner(std::chrono::milliseconds grace, const std::string& peer);
+  void release_scanner();
   // The hello exchange; the negotiated protocol version, 0 if the hello was refused.
   std::uint32_t handshake(slproto::Connection& connection);
   slproto::pb::StatusReply status_reply(std::uint32_t negotiated) const;
   std::uint64_t capabilities() const;
+  std::string busy_reason() const;
   // False when the connection is gone.
   bool run_scan(slproto::Connection& connection, const slproto::pb::ScanRequest& request);
   void write_timing_log(const ScanPlan& plan, const ScanOutcome& outcome, const std::vector<TimingEvent>& sent);

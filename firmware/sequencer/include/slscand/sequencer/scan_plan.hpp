@@ -26,6 +26,14 @@ struct ScanPlan {
   std::uint64_t frames_total() const { return angles_deg.size() * projectors.size() * patterns.size(); }
 };
 
+// Bounds on what one request may ask of the board (docs/security.md): beyond them a request is
+// a mistake or an attempt to hold the scanner, not a scan.
+inline constexpr int kMaxScanViews = 360;                   // one per degree
+inline constexpr std::uint32_t kMaxExposureUs = 1'000'000;  // 1 s per pattern
+inline constexpr std::uint32_t kMaxPatternPeriodUs = 2'000'000;
+inline constexpr std::uint32_t kMaxTriggerDelayUs = 100'000;
+inline constexpr std::uint32_t kMaxSettleMs = 60'000;
+
 slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request, const hal::BoardConfig& board,
                                          const hal::CameraFormat& camera_format);
 

@@ -30,6 +30,10 @@ namespace slscand::hal::sim {
 struct SimFaults {
   std::array<bool, 2> projector_silent{};  // a projector that never raises TRIG_OUT_1
   bool camera_silent = false;              // exposures happen, frames never arrive
+  // Counted in camera frames from set_faults(): the n-th frame is exposed and read out but
+  // never delivered (the driver's counter skips it), or delivered with half its bytes.
+  int drop_frame_after = -1;
+  int short_frame_after = -1;
 };
 
 struct RecordedEdge {

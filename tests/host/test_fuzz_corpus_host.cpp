@@ -1,0 +1,21 @@
+// The host readers' fuzz corpora (PLY files, calibration capture manifests), crash reproducers
+// included, through the fuzz targets' property checks in the ordinary suite.
+#include <gtest/gtest.h>
+
+#include "../fuzz/corpus_replay.hpp"
+#include "../fuzz/fuzz_host_checks.hpp"
+#include "../fuzz/fuzz_manifest_checks.hpp"
+
+namespace {
+
+using slproto::fuzz::replay_corpus;
+
+TEST(FuzzCorpusHost, PlyFilesIncludingTheFaceIndexCrasher) {
+  EXPECT_GE(replay_corpus("ply", slproto::fuzz::check_ply_bytes), 3u);
+}
+
+TEST(FuzzCorpusHost, CalibrationManifests) {
+  EXPECT_GE(replay_corpus("calibration_manifest", slproto::fuzz::check_calibration_manifest), 1u);
+}
+
+}  // namespace

@@ -1,0 +1,280 @@
+// Faults across processes, as they happen on a bench (docs/faults.md): slscand killed with
+// SIGKILL in the middle of a scan, the host's disk filling up while it records (a file-size
+// limit on the slscan process), and slscand's network policy at start-up (token files, a
+// network address without a token). Each must end in a clear error naming the cause, leave
+// what was recorded readable, and (where slscand survives) the daemon ready for the next scan.
+// slscand runs the sim board (small rig, sphere) and slscan scans with the rig's exact
+// calibration, so no calibration step is needed.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <optional>
+#include <thread>
+
+#include "slproto/calibration.hpp"
+#include "slproto/capture.hpp"
+#include "slrig/rig.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+std::string read_text(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+struct Child {
+  pid_t pid = -1;
+  fs::path out, err;
+};
+
+struct Finished {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+// Starts a program with stdout/stderr in files. `file_size_limit` > 0 sets RLIMIT_FSIZE in
+// the child (SIGXFSZ ignored, so a write past it fails with EFBIG as on a full disk).
+Child spawn(const std::vector<std::string>& args, const fs::path& log_stem, const std::vector<std::string>& env = {},
+            rlim_t file_size_limit = 0) {
+  Child child{-1, log_stem.string() + ".out", log_stem.string() + ".err"};
+  std::vector<std::string> args_copy = args;
+  std::vector<char*> argv;
+  for (auto& a : args_copy) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  std::vector<std::string> env_copy = env;
+  child.pid = ::fork();
+  if (child.pid == 0) {
+    const int in = ::open("/dev/null", O_RDONLY);
+    const int out = ::open(child.out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    const int err = ::open(child.err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    ::dup2(in, STDIN_FILENO);
+    ::dup2(out, STDOUT_FILENO);
+    ::dup2(err, STDERR_FILENO);
+    for (auto& e : env_copy) ::putenv(e.data());
+    if (file_size_limit > 0) {
+      ::signal(SIGXFSZ, SIG_IGN);
+      const rlimit limit{file_size_limit, file_size_limit};
+      ::setrlimit(RLIMIT_FSIZE, &limit);
+    }
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  if (child.pid < 0) throw std::runtime_error("fork failed");
+  return child;
+}
+
+Finished wait_for(Child& child, std::chrono::seconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  int status = 0;
+  while (::waitpid(child.pid, &status, WNOHANG) == 0) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      ::kill(child.pid, SIGKILL);
+      ::waitpid(child.pid, &status, 0);
+      throw std::runtime_error("a child did not finish in time (stderr: " + child.err.string() + ")");
+    }
+    std::this_thread::sleep_for(20ms);
+  }
+  child.pid = -1;
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status), read_text(child.out), read_text(child.err)};
+}
+
+Finished run(const std::vector<std::string>& args, const fs::path& log_stem, const std::vector<std::string>& env = {},
+             rlim_t file_size_limit = 0) {
+  Child child = spawn(args, log_stem, env, file_size_limit);
+  return wait_for(child, 300s);
+}
+
+// slscand on the sim board until the test ends; port() once it listens.
+class Slscand {
+ public:
+  Slscand(const fs::path& log_stem, std::vector<std::string> extra = {}) {
+    std::vector<std::string> args{SLSCAND_BIN, "--board", std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml",
+                                  "--port",    "0",       "--no-realtime"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    child_ = spawn(args, log_stem);
+    const auto deadline = std::chrono::steady_clock::now() + 60s;
+    while (port_ == 0 && std::chrono::steady_clock::now() < deadline) {
+      const std::string out = read_text(child_.out);
+      if (const auto at = out.find("listening on "); at != std::string::npos && out.find('\n', at) != std::string::npos)
+        port_ = std::stoi(out.substr(out.rfind(':', out.find('\n', at)) + 1));
+      else if (::waitpid(child_.pid, nullptr, WNOHANG) != 0)
+        break;
+      std::this_thread::sleep_for(20ms);
+    }
+    if (port_ == 0) throw std::runtime_error("slscand did not start (stderr: " + child_.err.string() + ")");
+  }
+  ~Slscand() { stop(SIGTERM); }
+  pid_t pid() const { return child_.pid; }
+  int port() const { return port_; }
+  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
+  void stop(int signal) {
+    if (child_.pid <= 0) return;
+    ::kill(child_.pid, signal);
+    ::waitpid(child_.pid, nullptr, 0);
+    child_.pid = -1;
+  }
+  std::string log() const { return read_text(child_.err); }
+
+ private:
+  Child child_;
+  int port_ = 0;
+};
+
+class Faults : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = fs::temp_directory_path() / ("slscan_faults_" + std::to_string(::getpid()));
+    fs::create_directories(dir_);
+    auto scene = slrig::scene_preset("sphere", slrig::RigSize::small);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    ASSERT_TRUE(
+        slproto::save_calibration((dir_ / "calib.json").string(), slrig::ground_truth_calibration(*scene)).ok());
+  }
+  static void TearDownTestSuite() {
+    if (!keep_) fs::remove_all(dir_);
+  }
+  void TearDown() override {
+    if (HasFailure()) {
+      keep_ = true;
+      std::printf("keeping %s (logs, outputs) to look at\n", dir_.c_str());
+    }
+  }
+  static std::vector<std::string> scan_args(const std::string& address, const fs::path& out,
+                                            std::vector<std::string> angles = {"0"}) {
+    std::vector<std::string> args{
+        SLSCAN_BIN,    "scan",       "--connect",     address, "--calib",     (dir_ / "calib.json").string(),
+        "--out",       out.string(), "--exposure-us", "2000",  "--period-us", "5000",
+        "--settle-ms", "20",         "--angles"};
+    args.insert(args.end(), angles.begin(), angles.end());
+    return args;
+  }
+  // Frames in a capture file; fails the test if the file does not read to its end cleanly.
+  static std::size_t frames_in(const fs::path& capture, bool expect_truncation = false) {
+    auto reader = slproto::CaptureReader::open(capture.string());
+    EXPECT_TRUE(reader.ok()) << reader.error().message;
+    if (!reader) return 0;
+    std::size_t frames = 0;
+    for (;;) {
+      auto message = reader->next();
+      EXPECT_TRUE(message.ok()) << message.error().message;
+      if (!message || *message == nullptr) break;
+      if ((*message)->get<slproto::pb::FrameHeader>() != nullptr) ++frames;
+    }
+    EXPECT_EQ(reader->truncation().has_value(), expect_truncation);
+    return frames;
+  }
+  static void expect_scan_succeeds(const Slscand& daemon, const std::string& name,
+                                   const std::vector<std::string>& env = {}) {
+    const Finished scan = run(scan_args(daemon.address(), dir_ / name), dir_ / name, env);
+    EXPECT_EQ(scan.exit_code, 0) << scan.err;
+    EXPECT_TRUE(fs::exists(dir_ / name / "model.ply"));
+    EXPECT_EQ(frames_in(dir_ / name / "capture.slcap"), 38u);
+  }
+
+  static inline fs::path dir_;
+  static inline bool keep_ = false;
+};
+
+TEST_F(Faults, FirmwareKilledMidScanLeavesACaptureThatReprocesses) {
+  Slscand daemon(dir_ / "killed_slscand");
+  Child scan = spawn(scan_args(daemon.address(), dir_ / "killed", {"0", "60", "120"}), dir_ / "killed");
+  // Kill the board once about 40 frames (of 114) are on the host's disk.
+  const fs::path partial = dir_ / "killed" / "capture.slcap.partial";
+  const auto deadline = std::chrono::steady_clock::now() + 120s;
+  while (std::chrono::steady_clock::now() < deadline &&
+         !(fs::exists(partial) && fs::file_size(partial) > 40u * 640u * 512u))
+    std::this_thread::sleep_for(5ms);
+  ASSERT_TRUE(fs::exists(partial)) << "the scan never started recording";
+  daemon.stop(SIGKILL);
+  const Finished result = wait_for(scan, 120s);
+  EXPECT_NE(result.exit_code, 0);
+  EXPECT_NE(result.err.find("connection to the scanner"), std::string::npos) << result.err;
+  EXPECT_NE(result.err.find("capture.slcap"), std::string::npos) << result.err;
+  // Complete records only, under the final name: the host closed it cleanly.
+  const fs::path capture = dir_ / "killed" / "capture.slcap";
+  const std::size_t frames = frames_in(capture);
+  EXPECT_GE(frames, 40u);
+  EXPECT_LT(frames, 114u);
+  EXPECT_FALSE(fs::exists(dir_ / "killed" / "model.ply"));
+
+  const Finished again = run({SLSCAN_BIN, "reprocess", capture.string(), "--calib", (dir_ / "calib.json").string(),
+                              "--out", (dir_ / "killed_reprocessed").string()},
+                             dir_ / "killed_reprocess");
+  EXPECT_EQ(again.exit_code, 0) << again.err;
+  EXPECT_NE(again.err.find("missing"), std::string::npos) << again.err;
+  EXPECT_TRUE(fs::exists(dir_ / "killed_reprocessed" / "model.ply"));
+}
+
+TEST_F(Faults, DiskFullWhileRecordingFailsClearlyAndKeepsTheCompleteFrames) {
+  Slscand daemon(dir_ / "full_slscand");
+  // 3 MB: the request and about nine 640 x 512 frames fit, the tenth does not.
+  const rlim_t limit = 3u << 20;
+  const Finished full = run(scan_args(daemon.address(), dir_ / "full"), dir_ / "full", {}, limit);
+  EXPECT_NE(full.exit_code, 0);
+  EXPECT_NE(full.err.find("disk full or file too large"), std::string::npos) << full.err;
+  EXPECT_NE(full.err.find((dir_ / "full" / "capture.slcap.partial").string()), std::string::npos) << full.err;
+  // The format's promise: no file under the final name unless it is complete...
+  EXPECT_FALSE(fs::exists(dir_ / "full" / "capture.slcap"));
+  EXPECT_FALSE(fs::exists(dir_ / "full" / "model.ply"));
+  // ...and the partial file holds whole records only, every frame before the full disk.
+  const fs::path partial = dir_ / "full" / "capture.slcap.partial";
+  ASSERT_TRUE(fs::exists(partial));
+  EXPECT_LE(fs::file_size(partial), limit);
+  const std::size_t frames = frames_in(partial);
+  EXPECT_GE(frames, 8u);
+  EXPECT_LT(frames, 38u);
+  // The host asked the board to stop; the board says why, and scans again.
+  for (int i = 0; i < 100 && daemon.log().find("the host cannot record") == std::string::npos; ++i)
+    std::this_thread::sleep_for(50ms);
+  EXPECT_NE(daemon.log().find("the host cannot record"), std::string::npos) << daemon.log();
+  expect_scan_succeeds(daemon, "after_full");
+}
+
+TEST_F(Faults, NetworkAddressNeedsAPrivateTokenFile) {
+  auto write_token = [&](const std::string& name, const std::string& text, mode_t mode) {
+    const fs::path path = dir_ / name;
+    std::ofstream(path) << text;
+    ::chmod(path.c_str(), mode);
+    return path.string();
+  };
+  const std::vector<std::string> board{SLSCAND_BIN, "--board", std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml",
+                                       "--port",    "0",       "--no-realtime",
+                                       "--bind",    "0.0.0.0"};
+  auto with = [&](std::vector<std::string> extra) {
+    std::vector<std::string> args = board;
+    args.insert(args.end(), extra.begin(), extra.end());
+    return args;
+  };
+  Finished refused = run(board, dir_ / "no_token");
+  EXPECT_EQ(refused.exit_code, 2);
+  EXPECT_NE(refused.err.find("refusing to listen on 0.0.0.0 without a token"), std::string::npos) << refused.err;
+  refused = run(with({"--token-file", write_token("open_token", "0123456789abcdef-token\n", 0644)}), dir_ / "open");
+  EXPECT_EQ(refused.exit_code, 2);
+  EXPECT_NE(refused.err.find("chmod 600"), std::string::npos) << refused.err;
+  refused = run(with({"--token-file", write_token("empty_token", "", 0600)}), dir_ / "empty");
+  EXPECT_EQ(refused.exit_code, 2);
+  EXPECT_NE(refused.err.find("empty"), std::string::npos) << refused.err;
+
+  // A good token file: slscand serves on the network; a host without the token is refused, a
+  // host with it (from SLSCAN_TOKEN_FILE, not the command line) scans.
+  const std::string token = write_token("token", "0123456789abcdef-token\n", 0600);
+  Slscand daemon(dir_ / "token_slscand", {"--bind", "0.0.0.0", "--token-file", token});
+  const Finished no_token = run(scan_args(daemon.address(), dir_ / "no_token_scan"), dir_ / "no_token_scan");
+  EXPECT_NE(no_token.exit_code, 0);
+  EXPECT_NE(no_token.err.find("an auth token is required"), std::string::npos) << no_token.err;
+  expect_scan_succeeds(daemon, "token_scan", {"SLSCAN_TOKEN_FILE=" + token});
+}
+
+}  // namespace
