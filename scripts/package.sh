@@ -139,9 +139,13 @@ done
 "$root/usr/bin/slscan" --help >/dev/null || fail "the packaged slscan does not run"
 # The packaged configuration parses, and the packaged binary passes every check on the
 # packaged sim board (any free port; a token so the token check has one).
+check_token=$(mktemp)
+echo "package-check-token-0123456789" > "$check_token"
+chmod 600 "$check_token"
 check_out=$("$root/usr/bin/slscand" --config "$root/etc/slscan/slscand.toml" \
-  --board "$root/usr/share/slscan/boards/sim.toml" --port 0 --token package-check --check) ||
+  --board "$root/usr/share/slscan/boards/sim.toml" --port 0 --token-file "$check_token" --check) ||
   { echo "$check_out"; fail "slscand --check on the packaged sim board failed"; }
+rm -f "$check_token"
 note "scratch root: $(tail -n1 <<<"$check_out") (packaged slscand, sim board, packaged configuration)"
 grep -q '^token_file = "/etc/slscan/token"' "$root/etc/slscan/slscand.toml" || fail "slscand.toml: no token_file"
 

@@ -23,6 +23,8 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <cctype>
+#include <cerrno>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -52,19 +54,20 @@ namespace pb = slproto::pb;
 using slscan::hil::Nanos;
 
 struct Options {
-  std::string board_path, slscand_path, connect, timing_log_dir, out_dir, json_path, token, check_dir;
+  std::string board_path, slscand_path, connect, timing_log_dir, out_dir, json_path, token_file, token, check_dir;
   long views = 2;
   bool timing = true;
   bool realtime = true;
 };
 
 [[noreturn]] void usage_error(const std::string& message) {
-  std::fprintf(stderr,
-               "slscan_hil: %s\n"
-               "usage: slscan_hil --board FILE (--slscand PATH | --connect HOST:PORT --timing-log-dir DIR)\n"
-               "                  [--views N] [--out DIR] [--json FILE] [--token T] [--no-timing] [--no-realtime]\n"
-               "       slscan_hil check --board FILE --dir DIR [--json FILE] [--no-timing]\n",
-               message.c_str());
+  std::fprintf(
+      stderr,
+      "slscan_hil: %s\n"
+      "usage: slscan_hil --board FILE (--slscand PATH | --connect HOST:PORT --timing-log-dir DIR)\n"
+      "                  [--views N] [--out DIR] [--json FILE] [--token-file F] [--no-timing] [--no-realtime]\n"
+      "       slscan_hil check --board FILE --dir DIR [--json FILE] [--no-timing]\n",
+      message.c_str());
   std::exit(2);
 }
 
@@ -80,7 +83,7 @@ class Daemon {
     }
     std::vector<std::string> args = {o.slscand_path, "--board", o.board_path, "--port", "0", "--timing-log", log_dir};
     if (!o.realtime) args.emplace_back("--no-realtime");
-    if (!o.token.empty()) args.insert(args.end(), {"--token", o.token});
+    if (!o.token_file.empty()) args.insert(args.end(), {"--token-file", o.token_file});
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
@@ -384,8 +387,8 @@ int main(int argc, char** argv) {
       o.check_dir = value();
     else if (arg == "--json")
       o.json_path = value();
-    else if (arg == "--token")
-      o.token = value();
+    else if (arg == "--token-file")
+      o.token_file = value();
     else if (arg == "--no-timing")
       o.timing = false;
     else if (arg == "--no-realtime")
@@ -402,6 +405,19 @@ int main(int argc, char** argv) {
     }
   }
   if (o.board_path.empty()) usage_error("--board is required");
+  if (!o.token_file.empty()) {
+    // The host's side of the shared token (slscand checks the file's mode itself).
+    std::FILE* file = std::fopen(o.token_file.c_str(), "r");
+    if (file == nullptr) {
+      std::fprintf(stderr, "slscan_hil: %s: cannot read the token file: %s\n", o.token_file.c_str(),
+                   std::strerror(errno));
+      return 2;
+    }
+    char line[4096] = {};
+    if (std::fgets(line, sizeof line, file) != nullptr) o.token = line;
+    std::fclose(file);
+    while (!o.token.empty() && std::isspace(static_cast<unsigned char>(o.token.back()))) o.token.pop_back();
+  }
   auto board = slscand::hal::load_board(o.board_path);
   if (!board) {
     std::fprintf(stderr, "slscan_hil: %s\n", board.error().message.c_str());
