@@ -10,4 +10,4 @@ SUDO=
 $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends libpcl-dev libopen3d-dev
 dir=${1:-build/release}
 cmake --preset release -B "$dir" -DSLSCAN_BENCH_PEERS=ON
-echo "now: cmake --build $dir -j2 --target bench_speed && $dir/bench/speed/bench_speed --out docs/benchmarks-speed.md"
+echo "now: cmake --build $dir -j2 --target bench_speed && $dir/bench/speed/bench_speed --out speed.md   # see docs/benchmarks.md"
