@@ -232,6 +232,8 @@ PlyTable read_ply_table(const std::string& path) {
   }
 
   for (const PlyElement& element : elements) {
+    // An element without properties has no bytes to read (the fuzzer gave one 4 billion records).
+    if (element.properties.empty()) continue;
     const bool is_vertex = element.name == "vertex";
     const bool is_face = element.name == "face";
     if (is_vertex) {
@@ -332,7 +334,14 @@ core::PointCloud read_ply(const std::string& path) {
   }
   if (const int iv = table.find("view_id"); iv >= 0) {
     cloud.view_id.resize(n);
-    for (std::size_t i = 0; i < n; ++i) cloud.view_id[i] = static_cast<std::uint16_t>(table.columns[iv][i]);
+    for (std::size_t i = 0; i < n; ++i) {
+      const double view = table.columns[iv][i];
+      // Written so that NaN fails too: the cast of anything outside 0..65535 is undefined.
+      if (!(view >= 0 && view <= 65535) || view != std::floor(view))
+        fail(path,
+             "vertex " + std::to_string(i) + ": view_id " + std::to_string(view) + " is not an integer in 0..65535");
+      cloud.view_id[i] = static_cast<std::uint16_t>(view);
+    }
   }
   return cloud;
 }
