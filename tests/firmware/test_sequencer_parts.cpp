@@ -187,9 +187,15 @@ double inversion_wait_ms(Mutex& mutex) {
     }
   });
   while (!holder_has_lock) std::this_thread::yield();
+  std::atomic<bool> waiter_waiting{false};
   std::thread busy([&] {
     become(20);
     start_busy = true;
+    // The spell is timed from the moment the waiter asks for the lock (it may be slow to get
+    // there on a loaded machine), with a cap in case it never does.
+    const auto cap = Clock::now() + 10 * busy_spell;
+    while (!waiter_waiting && Clock::now() < cap) {
+    }
     const auto until = Clock::now() + busy_spell;
     while (Clock::now() < until && !waiter_done) {
     }
@@ -198,6 +204,7 @@ double inversion_wait_ms(Mutex& mutex) {
     while (!start_busy) std::this_thread::yield();
     become(30);
     const auto t0 = Clock::now();
+    waiter_waiting = true;
     {
       std::lock_guard lock(mutex);
       waited_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
