@@ -75,7 +75,7 @@ if [ ! -f "$static_build/CMakeCache.txt" ]; then
   # project(): every find_library (pkg-config's imported targets too) then takes the .a.
   echo 'set(CMAKE_FIND_LIBRARY_SUFFIXES .a)' >"$cache/static.cmake"
   cmake -S "$root" -B "$static_build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSLSCAN_WERROR=ON \
-    -DSLSCAN_BUILD_HOST=OFF -DSLSCAN_BUILD_BENCH=OFF -DSLSCAND_LIBCAMERA=OFF -DCMAKE_EXE_LINKER_FLAGS=-static \
+    -DSLSCAN_BUILD_HOST=OFF -DSLSCAN_BUILD_BENCH=OFF -DSLSCAND_LIBCAMERA=OFF -DSLSCAN_AVAHI=OFF -DCMAKE_EXE_LINKER_FLAGS=-static \
     -DCMAKE_PROJECT_INCLUDE="$cache/static.cmake" >"$work/cmake.log" 2>&1 || { cat "$work/cmake.log"; exit 1; }
 fi
 # A no-op when nothing changed.
