@@ -744,6 +744,13 @@ TEST_F(DaemonFixture, SilentOversizedAndUnauthorisedConnectionsAreDropped) {
   ASSERT_GE(silent, 0);
   EXPECT_LT(time_until_closed(silent, 10s), 2500ms);
   ::close(silent);
+  // The daemon counts a failed handshake after the peer has its answer: wait for the count,
+  // so the silent peer's error cannot land after the oversized one's and hide it.
+  auto wait_for_failed_handshakes = [&](std::uint64_t n) {
+    for (int i = 0; i < 200 && daemon_->stats().handshakes_failed < n; ++i) std::this_thread::sleep_for(10ms);
+    return daemon_->stats().handshakes_failed;
+  };
+  EXPECT_EQ(wait_for_failed_handshakes(1), 1u);
 
   // A hello with a 200 KB name: over the 64 KiB control limit, refused on its header alone.
   pb::Hello huge = slproto::make_hello(std::string(200 << 10, 'x'), "0", 0, "0123456789abcdef-token");
@@ -754,11 +761,6 @@ TEST_F(DaemonFixture, SilentOversizedAndUnauthorisedConnectionsAreDropped) {
   (void)::send(big, bytes->data(), 64, MSG_NOSIGNAL);  // the header and a little more
   EXPECT_LT(time_until_closed(big, 10s), 2500ms);
   ::close(big);
-  // The daemon counts a failed handshake after the peer has its answer: wait for the count.
-  auto wait_for_failed_handshakes = [&](std::uint64_t n) {
-    for (int i = 0; i < 200 && daemon_->stats().handshakes_failed < n; ++i) std::this_thread::sleep_for(10ms);
-    return daemon_->stats().handshakes_failed;
-  };
   EXPECT_EQ(wait_for_failed_handshakes(2), 2u);
   EXPECT_NE(daemon_->stats().last_error.find("limit"), std::string::npos) << daemon_->stats().last_error;
 
