@@ -275,9 +275,18 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
     const ViewTruth& truth = truths.at(static_cast<std::size_t>(report.view_index));
     Json j;
     j["view"] = report.view_index;
-    j["fuse_clean_ms"] = {{"total", report.fuse_ms},      {"flying_pixels", report.flying_pixels_ms},
-                          {"fusion", report.fusion_ms},   {"denoise", report.denoise_ms},
-                          {"normals", report.normals_ms}, {"outliers", report.outliers_ms}};
+    j["fuse_clean_ms"] = {{"total", report.fuse_ms},
+                          {"flying_pixels", report.flying_pixels_ms},
+                          {"fusion", report.fusion_ms},
+                          {"denoise", report.denoise_ms},
+                          {"normals", report.normals_ms},
+                          {"outliers", report.outliers_ms},
+                          {"depth_smoothing", report.smoothing_ms}};
+    j["depth_smoothing"] = {{"window_radius_px", report.depth_smoothing.window_radius_px},
+                            {"full", report.depth_smoothing.full},
+                            {"partial", report.depth_smoothing.partial},
+                            {"kept", report.depth_smoothing.kept},
+                            {"mean_shift_um", report.depth_smoothing.mean_shift_um}};
     for (std::size_t s = 0; s < 2; ++s) {
       const OrganizedCloud& cloud = products.projector_clouds[s];
       Json pj = error_stats(cloud, truth).json();

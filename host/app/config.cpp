@@ -50,8 +50,10 @@ class Section {
 
 void apply_config(const json& config, core::ReconstructionOptions& o) {
   if (!config.is_object()) throw std::invalid_argument("config: the top level must be an object");
-  static const char* sections[] = {"decode",       "triangulate", "fusion", "flying_pixels", "turntable_denoise",
-                                   "registration", "outliers",    "model",  "mesh",          "normals"};
+  static const char* sections[] = {
+      "decode",       "triangulate", "fusion",          "flying_pixels",  "turntable_denoise",
+      "registration", "outliers",    "depth_smoothing", "view_selection", "model",
+      "mesh",         "normals"};
   for (const auto& [key, value] : config.items())
     if (std::find(std::begin(sections), std::end(sections), key) == std::end(sections))
       throw std::invalid_argument("config: unknown section '" + key + "'");
@@ -102,6 +104,19 @@ void apply_config(const json& config, core::ReconstructionOptions& o) {
       .read("enabled", o.remove_outliers)
       .read("k", o.outliers.k)
       .read("std_ratio", o.outliers.std_ratio)
+      .finish();
+  Section(config, "depth_smoothing")
+      .read("enabled", o.smooth_depth)
+      .read("window_radius_mm", o.depth_smoothing.window_radius_mm)
+      .read("max_window_radius_px", o.depth_smoothing.max_window_radius_px)
+      .read("max_depth_slope", o.depth_smoothing.max_depth_slope)
+      .read("min_neighbors", o.depth_smoothing.min_neighbors)
+      .finish();
+  Section(config, "view_selection")
+      .read("enabled", o.select_best_views)
+      .read("max_incidence_deg", o.overlap.max_incidence_deg)
+      .read("same_spot_mm", o.overlap.same_spot_mm)
+      .read("same_spot_footprints", o.overlap.same_spot_footprints)
       .finish();
   Section(config, "normals")
       .read("window_radius", o.grid_normals.window_radius)
@@ -171,6 +186,17 @@ json config_to_json(const core::ReconstructionOptions& o) {
         {"turntable_prior_deg", o.registration.turntable_prior_deg},
         {"turntable_prior_mm", o.registration.turntable_prior_mm}}},
       {"outliers", {{"enabled", o.remove_outliers}, {"k", o.outliers.k}, {"std_ratio", o.outliers.std_ratio}}},
+      {"depth_smoothing",
+       {{"enabled", o.smooth_depth},
+        {"window_radius_mm", o.depth_smoothing.window_radius_mm},
+        {"max_window_radius_px", o.depth_smoothing.max_window_radius_px},
+        {"max_depth_slope", o.depth_smoothing.max_depth_slope},
+        {"min_neighbors", o.depth_smoothing.min_neighbors}}},
+      {"view_selection",
+       {{"enabled", o.select_best_views},
+        {"max_incidence_deg", o.overlap.max_incidence_deg},
+        {"same_spot_mm", o.overlap.same_spot_mm},
+        {"same_spot_footprints", o.overlap.same_spot_footprints}}},
       {"normals",
        {{"window_radius", o.grid_normals.window_radius},
         {"max_neighbor_distance_mm", o.grid_normals.max_neighbor_distance_mm},

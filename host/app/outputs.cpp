@@ -146,6 +146,12 @@ json scan_result_to_json(const core::ScanResult& result) {
                        {"below_min_height", view.turntable_denoise.below_min_height},
                        {"above_max_height", view.turntable_denoise.above_max_height},
                        {"outside_radius", view.turntable_denoise.outside_radius}}},
+                     {"depth_smoothing",
+                      {{"window_radius_px", view.depth_smoothing.window_radius_px},
+                       {"full", view.depth_smoothing.full},
+                       {"partial", view.depth_smoothing.partial},
+                       {"kept", view.depth_smoothing.kept},
+                       {"mean_shift_um", view.depth_smoothing.mean_shift_um}}},
                      {"points", view.points},
                      {"fuse_ms", view.fuse_ms}});
   }
@@ -173,6 +179,8 @@ json scan_result_to_json(const core::ScanResult& result) {
               {"registration", registration},
               {"model",
                {{"merged_points", result.merged_points},
+                {"steep_points", result.overlap.steep},
+                {"steep_points_replaced", result.overlap.replaced},
                 {"outliers_removed", result.outliers_removed},
                 {"points", result.model.size()}}},
               {"stage_ms", result.stage_ms}};

@@ -65,7 +65,7 @@ int run_import(const ImportCommand& command, const Console& console) {
   if (description.plan.phase_steps == 0)
     console.info(
         "a Gray code without phase steps: its steps are the signal, reprocess with decode.smoothing_radius 0 "
-        "(docs/real-data.md)");
+        "and depth_smoothing.enabled false (docs/real-data.md)");
   return exit_ok;
 }
 

@@ -26,6 +26,16 @@ TEST(AppConfig, AppliesValuesAndRoundTrips) {
   EXPECT_FALSE(options.remove_flying_pixels);
   EXPECT_FALSE(options.denoise_turntable);
   EXPECT_FLOAT_EQ(options.fusion.agreement_mm, 0.35f) << "a second config leaves the first's values";
+  apply_config(json::parse(R"({"depth_smoothing": {"enabled": false, "window_radius_mm": 0.3},
+      "view_selection": {"max_incidence_deg": 70}})"),
+               options);
+  EXPECT_FALSE(options.smooth_depth);
+  EXPECT_DOUBLE_EQ(options.depth_smoothing.window_radius_mm, 0.3);
+  EXPECT_TRUE(options.select_best_views);
+  EXPECT_DOUBLE_EQ(options.overlap.max_incidence_deg, 70);
+  core::ReconstructionOptions refused;
+  EXPECT_THROW(apply_config(json::parse(R"({"view_selection": {"max_incidence_deg": 95}})"), refused),
+               std::invalid_argument);
   // What a report records can be fed back and gives the same parameters.
   core::ReconstructionOptions again;
   apply_config(config_to_json(options), again);

@@ -1,5 +1,6 @@
 #include "slscan/core/scan_reconstruction.hpp"
 
+#include <tbb/parallel_for.h>
 #include <tbb/task_group.h>
 
 #include <algorithm>
@@ -27,6 +28,8 @@ void ReconstructionOptions::check() const {
   fusion.check();
   flying_pixels.check();
   turntable_denoise.check();
+  depth_smoothing.check();
+  overlap.check();
   if (voxel_mm < 0) throw std::invalid_argument("reconstruction options: voxel_mm must be >= 0");
   if (normal_neighbors != 0 && normal_neighbors < 3)
     throw std::invalid_argument("reconstruction options: normal_neighbors must be 0 (the views' grid normals) or >= 3");
@@ -181,6 +184,9 @@ struct ScanReconstructor::Impl {
       denoised.cloud = std::move(filtered.cloud);
     }
     const double outliers_ms = split();
+    DepthSmoothingCounts smoothing;
+    if (options.smooth_depth) smoothing = smooth_depth(denoised.cloud, calibration.camera.fx, options.depth_smoothing);
+    const double smoothing_ms = split();
     const std::vector<Eigen::Vector3f> normals =
         grid_normals(denoised.cloud, Eigen::Vector3f::Zero(), options.grid_normals);
     products.points = to_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index), &normals);
@@ -193,6 +199,8 @@ struct ScanReconstructor::Impl {
     view->report.denoise_ms = denoise_ms;
     view->report.normals_ms = normals_ms;
     view->report.outliers_ms = outliers_ms;
+    view->report.smoothing_ms = smoothing_ms;
+    view->report.depth_smoothing = smoothing;
     view->report.fusion = fused.counts;
     view->report.flying_pixels = {flying[0].input + flying[1].input, flying[0].removed + flying[1].removed};
     for (std::size_t side = 0; side < 2; ++side) view->report.projectors[side].flying_pixels = flying[side];
@@ -369,6 +377,23 @@ ScanResult ScanReconstructor::finish() {
     }
   }
   result.stage_ms["register"] = ms_since(start);
+
+  start = Clock::now();
+  if (s.options.select_best_views && clouds.size() >= 2) {
+    std::vector<const OrganizedCloud*> grids;
+    for (const auto& products : result.view_products) grids.push_back(&products.cloud);
+    const OverlapSelection selection =
+        select_best_views(clouds, grids, table_from_view, s.calibration.camera, s.options.overlap);
+    result.overlap = selection.counts;
+    tbb::parallel_for(std::size_t{0}, clouds.size(), [&](std::size_t i) {
+      std::vector<std::size_t> kept;
+      kept.reserve(clouds[i].size());
+      for (std::size_t k = 0; k < clouds[i].size(); ++k)
+        if (selection.keep[i][k]) kept.push_back(k);
+      clouds[i] = clouds[i].select(kept);
+    });
+  }
+  result.stage_ms["select_views"] = ms_since(start);
 
   start = Clock::now();
   PointCloud merged;

@@ -33,6 +33,10 @@ struct IcpOptions {
   int max_iterations_per_stage = 20;
   double converged_rotation_deg = 5e-4;  // a stage ends when every update is below both
   double converged_translation_mm = 5e-4;
+  // ... or when the objective (residuals and turntable prior, as an RMS) fell by less than this
+  // fraction over the last iteration (after the sixth): the poses then move within their own
+  // uncertainty.
+  double converged_relative_rms = 1e-4;
   std::size_t source_points_per_view = 20000;  // random subsample of each view's points
   // Sources per view in the stages before the last: the wide gates only need the pose to
   // within a fraction of the next gate, which a quarter of the points gives at a quarter of

@@ -18,6 +18,7 @@
 #include "slproto/pattern_plan.hpp"
 #include "slscan/core/cloud_filters.hpp"
 #include "slscan/core/decode.hpp"
+#include "slscan/core/depth_smoothing.hpp"
 #include "slscan/core/fusion.hpp"
 #include "slscan/core/mesh.hpp"
 #include "slscan/core/normals.hpp"
@@ -25,6 +26,7 @@
 #include "slscan/core/registration.hpp"
 #include "slscan/core/triangulate.hpp"
 #include "slscan/core/turntable_denoise.hpp"
+#include "slscan/core/view_overlap.hpp"
 
 namespace slscan::core {
 
@@ -43,6 +45,15 @@ struct ReconstructionOptions {
   // (cloud_filters.hpp), on the worker that fused it: it runs while the next view streams in.
   bool remove_outliers = true;
   StatisticalOutlierOptions outliers;
+  // Depth smoothing of each view's cloud over its pixel grid (depth_smoothing.hpp), on the
+  // worker, after outlier removal and before the normals: each point slides along its camera
+  // ray to a local quadratic fit. Off: every point exactly as triangulated.
+  bool smooth_depth = true;
+  DepthSmoothingOptions depth_smoothing;
+  // Where registered views overlap, a point seen steeper than overlap.max_incidence_deg gives
+  // way to another view's measurement of the same spot within that limit (view_overlap.hpp).
+  bool select_best_views = true;
+  OverlapSelectionOptions overlap;
   double voxel_mm = 0;  // > 0: thin the merged model to one point per voxel
   // The model's normals: 0 keeps each view's grid normals (from its organised cloud, facing
   // its camera: outward), computed on the workers; >= 3 recomputes PCA normals over the merged
@@ -78,8 +89,9 @@ struct ViewReport {
   TurntableDenoiseCounts turntable_denoise;
   std::size_t points = 0;  // in the view's cloud after cleaning
   std::size_t outliers_removed = 0;
+  DepthSmoothingCounts depth_smoothing;
   double fuse_ms = 0;  // all of the view's cleanup below, on its worker
-  double flying_pixels_ms = 0, fusion_ms = 0, denoise_ms = 0, normals_ms = 0, outliers_ms = 0;
+  double flying_pixels_ms = 0, fusion_ms = 0, denoise_ms = 0, normals_ms = 0, outliers_ms = 0, smoothing_ms = 0;
 };
 
 // What a view leaves for reports and pictures (camera frame of that view).
@@ -98,6 +110,7 @@ struct ScanResult {
   std::string registration_error;  // why fine registration was not applied, if it failed
   PointCloud model;                // turntable frame, normals outward, confidence and view id kept
   std::size_t merged_points = 0, outliers_removed = 0;
+  OverlapSelectionCounts overlap;  // steep points replaced by a better view's
   bool meshed = false;
   MeshResult mesh;
   std::map<std::string, double> stage_ms;  // wall time of each stage after the last frame
