@@ -10,6 +10,7 @@ set(SLSCAN_PACKAGING_DIR ${PROJECT_SOURCE_DIR}/packaging)
 # Board side: installed under the prefix (/usr) except what Debian wants at fixed places.
 # The boards a person installs on; not the test-only ones (qemu-vm.toml is the HIL VM's).
 install(FILES ${PROJECT_SOURCE_DIR}/boards/rpi.toml ${PROJECT_SOURCE_DIR}/boards/beaglebone-black.toml
+              ${PROJECT_SOURCE_DIR}/boards/rpi-gige.toml
               ${PROJECT_SOURCE_DIR}/boards/sim.toml
         DESTINATION share/slscan/boards COMPONENT slscand)
 install(FILES ${SLSCAN_PACKAGING_DIR}/slscand.service DESTINATION /lib/systemd/system COMPONENT slscand)

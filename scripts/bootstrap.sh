@@ -29,13 +29,22 @@ fi
 packages=(
   # toolchain
   build-essential cmake ninja-build pkg-config git ccache
-  clang-14 libclang-rt-14-dev clang-format clang-tidy
+  clang-14 libclang-rt-14-dev clang-format clang-tidy  # clang-tidy: scripts/lint.sh
   # shared / protocol
   libprotobuf-dev protobuf-compiler nlohmann-json3-dev
+  # shared: the capture codec (compressed captures; host only, docs/scale.md)
+  libzstd-dev zstd
   # host
-  libeigen3-dev libopencv-dev libopencv-contrib-dev libtbb-dev libnanoflann-dev libcli11-dev libspdlog-dev
+  libeigen3-dev libopencv-dev libopencv-contrib-dev libtbb-dev libnanoflann-dev libcgal-dev libcli11-dev
+  # host: the mesher (slscan_mesh, docs/mesh.md): OpenVDB level sets (+ Imath); CGAL (above) closes and checks it
+  libopenvdb-dev libimath-dev
+  # host: batch reprocessing (SHA-256 job keys: libssl-dev; a one-node Slurm in the tests)
+  libssl-dev slurm-wlm slurmctld slurmd munge
   # firmware hardware backends
   libgpiod-dev gpiod libserialport-dev linux-libc-dev libtomlplusplus-dev
+  # GenICam cameras (Aravis 0.8) and its fake GigE Vision camera for the tests; Debian's
+  # aravis-0.8.pc requires libusb-1.0.pc, which libaravis-dev does not pull in
+  libaravis-dev aravis-tools libusb-1.0-0-dev
   # virtual rig CLI (slrig-render writes PNG frames)
   libpng-dev
   # tests and benchmarks (chromium: report.html is rendered headless, WebGL on SwiftShader)

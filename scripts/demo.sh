@@ -13,4 +13,6 @@ if [ "$(id -u)" -eq 0 ] || command -v sudo >/dev/null; then
 fi
 cmake --preset release >/dev/null
 cmake --build --preset release -j "$(nproc)" --target slscan slscand
-exec build/release/host/app/slscan demo --out out "$@"
+# --overwrite: each run replaces the demo capture of the last one in out/ (a scan of your own
+# into an existing folder is refused unless you say so).
+exec build/release/host/app/slscan demo --out out --overwrite "$@"

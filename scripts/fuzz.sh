@@ -25,6 +25,15 @@ if [ $# -gt 0 ]; then
   targets=("$@")
 else
   read -r -a targets <<<"$(tr ';' ' ' <"$build/tests/fuzz/targets.txt")"
+  # Left out of the default (CI) run, still run when named: OpenCV 4.6's FileStorage parser
+  # hangs on some malformed YAML (docs/security.md, fuzz finding 12; the input is in
+  # tests/fuzz/known-hangs/), which no catch can end. Its corpus is still replayed by ctest.
+  smoke_excluded=" foreign_calibration "
+  kept=()
+  for target in "${targets[@]}"; do
+    case "$smoke_excluded" in *" $target "*) echo "fuzz: $target left out of the default run (docs/security.md)" ;; *) kept+=("$target") ;; esac
+  done
+  targets=("${kept[@]}")
 fi
 if [ "${SLSCAN_FUZZ_NO_BUILD:-0}" != 1 ]; then
   cmake --build --preset fuzz -j "$(nproc)" --target "${targets[@]/#/fuzz_}"

@@ -75,7 +75,7 @@ if [ ! -f "$static_build/CMakeCache.txt" ]; then
   # project(): every find_library (pkg-config's imported targets too) then takes the .a.
   echo 'set(CMAKE_FIND_LIBRARY_SUFFIXES .a)' >"$cache/static.cmake"
   cmake -S "$root" -B "$static_build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DSLSCAN_WERROR=ON \
-    -DSLSCAN_BUILD_HOST=OFF -DSLSCAN_BUILD_BENCH=OFF -DSLSCAND_LIBCAMERA=OFF -DSLSCAN_AVAHI=OFF -DCMAKE_EXE_LINKER_FLAGS=-static \
+    -DSLSCAN_BUILD_HOST=OFF -DSLSCAN_BUILD_BENCH=OFF -DSLSCAND_LIBCAMERA=OFF -DSLSCAND_ARAVIS=OFF -DSLSCAN_AVAHI=OFF -DCMAKE_EXE_LINKER_FLAGS=-static \
     -DCMAKE_PROJECT_INCLUDE="$cache/static.cmake" >"$work/cmake.log" 2>&1 || { cat "$work/cmake.log"; exit 1; }
 fi
 # A no-op when nothing changed.
@@ -83,15 +83,15 @@ cmake --build "$static_build" -j2 --target slscan_hil_vm_check slscan_hil slscan
   { tail -40 "$work/build.log"; exit 1; }
 cmake --build "$root/build/dev" --target slscan_hil_uart_bridge >/dev/null 2>&1 ||
   cmake --build "$static_build" --target slscan_hil_uart_bridge >/dev/null
-bridge=$root/build/dev/tests/hil/slscan_hil_uart_bridge
-[ -x "$bridge" ] || bridge=$static_build/tests/hil/slscan_hil_uart_bridge
+bridge=$root/build/dev/firmware/tools/hil/slscan_hil_uart_bridge
+[ -x "$bridge" ] || bridge=$static_build/firmware/tools/hil/slscan_hil_uart_bridge
 
 # 4. The initramfs: busybox, the modules vivid needs (in modules.dep order), gpio-sim, the checker.
 init=$work/initramfs
 mkdir -p "$init"/{bin,sbin,dev,proc,sys,tmp,modules,boards}
 cp /bin/busybox "$init/bin/"
 for applet in sh mount mkdir echo cat insmod sleep poweroff ls; do ln -s busybox "$init/bin/$applet"; done
-cp "$static_build/tests/hil/slscan_hil_vm_check" "$static_build/tests/hil/slscan_hil" "$static_build/firmware/app/slscand" \
+cp "$static_build/firmware/tools/hil/slscan_hil_vm_check" "$static_build/firmware/tools/hil/slscan_hil" "$static_build/firmware/app/slscand" \
   "$init/bin/"
 cp "$root/boards/qemu-vm.toml" "$init/boards/"
 cp "$gpio_sim" "$init/modules/"

@@ -26,11 +26,11 @@
 #include <string>
 #include <vector>
 
-#include "cloud_filters_kdtree.hpp"
 #include "slproto/calibration.hpp"
 #include "slrig/rig.hpp"
 #include "slscan/core/fusion.hpp"
 #include "slscan/core/measure.hpp"
+#include "slscan/core/point_index.hpp"
 #include "slscan/core/registration.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
 
@@ -338,8 +338,8 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   model_json["max_registration_correction_deg"] = max_correction_deg;
   model_json["max_registration_correction_mm"] = max_correction_mm;
   if (!truth_points.empty() && !model.empty()) {
-    const slscan::core::detail::KdTree truth_tree(truth_points);
-    const slscan::core::detail::KdTree model_tree(model);
+    const slscan::core::PointIndex truth_tree(truth_points);
+    const slscan::core::PointIndex model_tree(model);
     // Stray points: above the platform by more than 0.5 mm and more than 0.5 mm from the object.
     std::size_t stray = 0, near_object = 0;
     std::vector<double> distances;

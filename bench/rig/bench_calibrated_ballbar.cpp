@@ -21,7 +21,7 @@
 #include "slscan/core/calibration_rig.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
-#include "virtual_calibration.hpp"
+#include "slscan/virtual_rig/virtual_calibration.hpp"
 
 namespace {
 
@@ -79,13 +79,13 @@ int main(int argc, char** argv) try {
   const char* size_name = size == slrig::RigSize::full ? "full" : "small";
   const auto t0 = Clock::now();
   const slrig::Scene calibration_scene = slrig::scene_preset("calibration", size).value();
-  const auto capture = slscan::app::render_virtual_calibration_capture(
+  const auto capture = slscan::virtual_rig::render_virtual_calibration_capture(
       calibration_scene, std::string("virtual rig, calibration preset (") + size_name + "), bench_calibrated_ballbar");
   const auto t_render = Clock::now();
   const auto calibrated = slscan::core::calibrate_rig(capture.capture);
   std::printf("%s", calibrated.report.summary().c_str());
   std::printf("\nagainst the rig's truth (%s rig):\n%s\n", size_name,
-              slscan::app::calibration_errors(calibrated, capture).table().c_str());
+              slscan::virtual_rig::calibration_errors(calibrated, capture).table().c_str());
   const auto t1 = Clock::now();
   {
     // The same capture without the final joint refinement (separate solves only), for comparison.
@@ -93,7 +93,7 @@ int main(int argc, char** argv) try {
     separate.joint_refinement = false;
     const auto without = slscan::core::calibrate_rig(capture.capture, separate);
     std::printf("without the joint refinement (separate solves):\n%s\n",
-                slscan::app::calibration_errors(without, capture).table().c_str());
+                slscan::virtual_rig::calibration_errors(without, capture).table().c_str());
   }
   std::printf("render %.1f s, calibrate %.1f s (wall)\n", std::chrono::duration<double>(t_render - t0).count(),
               std::chrono::duration<double>(t1 - t_render).count());

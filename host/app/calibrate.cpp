@@ -9,7 +9,7 @@
 #include "slscan/io/ply.hpp"
 #ifdef SLSCAN_WITH_DEMO
 #include "slrig/rig.hpp"
-#include "virtual_calibration.hpp"
+#include "slscan/virtual_rig/virtual_calibration.hpp"
 #endif
 
 namespace slscan::app {
@@ -56,7 +56,7 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
   core::CalibrationOptions options;
   options.turntable = !command.no_turntable;
 #ifdef SLSCAN_WITH_DEMO
-  std::optional<VirtualCalibrationCapture> rendered;
+  std::optional<virtual_rig::VirtualCalibrationCapture> rendered;
 #endif
   if (!command.virtual_rig.empty()) {
 #ifdef SLSCAN_WITH_DEMO
@@ -67,8 +67,9 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
                                   "\"");
     const auto size = command.virtual_rig == "full" ? slrig::RigSize::full : slrig::RigSize::small;
     console.info("rendering the virtual rig's calibration capture (" + command.virtual_rig + ")");
-    rendered = render_virtual_calibration_capture(slrig::scene_preset("calibration", size).value(),
-                                                  "virtual rig, calibration preset (" + command.virtual_rig + ")");
+    rendered = virtual_rig::render_virtual_calibration_capture(
+        slrig::scene_preset("calibration", size).value(),
+        "virtual rig, calibration preset (" + command.virtual_rig + ")");
     capture = rendered->capture;
     if (!command.write_capture_dir.empty()) {
       io::write_calibration_capture(capture, command.write_capture_dir);
@@ -94,7 +95,8 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
   if (!console.quiet) std::fputs(result.report.summary().c_str(), stdout);
 #ifdef SLSCAN_WITH_DEMO
   if (rendered && !console.quiet)
-    std::printf("against the virtual rig's truth:\n%s", calibration_errors(result, *rendered).table().c_str());
+    std::printf("against the virtual rig's truth:\n%s",
+                virtual_rig::calibration_errors(result, *rendered).table().c_str());
 #endif
   if (auto status = slproto::save_calibration(command.output_path, result.calibration); !status)
     throw io::IoError(status.error().message);

@@ -1,8 +1,10 @@
 #include "config.hpp"
 
-#include <fstream>
-#include <sstream>
+#include <cstdio>
+#include <optional>
 
+#include "slproto/file_util.hpp"
+#include "slproto/json_fields.hpp"
 #include "slscan/io/ply.hpp"
 
 namespace slscan::app {
@@ -11,53 +13,29 @@ using nlohmann::json;
 
 namespace {
 
-// Reads the listed keys of one section into their fields; any other key is an error.
+// One section of the config: the listed keys are read into their fields (absent keys leave
+// the defaults); finish() refuses any other key.
 class Section {
  public:
-  Section(const json& parent, const std::string& name) : name_(name) {
-    auto it = parent.find(name);
-    if (it == parent.end()) return;
-    if (!it->is_object()) throw std::invalid_argument("config: '" + name + "' must be an object");
-    object_ = &*it;
+  Section(slproto::JsonObject& top, const char* name) {
+    if (top.has(name)) object_.emplace(top.object(name));
   }
   template <class T>
   Section& read(const char* key, T& field) {
-    seen_.push_back(key);
-    if (!object_) return *this;
-    auto it = object_->find(key);
-    if (it == object_->end()) return *this;
-    try {
-      field = it->get<T>();
-    } catch (const json::exception&) {
-      throw std::invalid_argument("config: '" + name_ + "." + key + "' has the wrong type (" + it->dump() + ")");
-    }
+    if (object_) object_->read(key, field);
     return *this;
   }
   void finish() const {
-    if (!object_) return;
-    for (const auto& [key, value] : object_->items())
-      if (std::find(seen_.begin(), seen_.end(), key) == seen_.end())
-        throw std::invalid_argument("config: unknown key '" + name_ + "." + key + "'");
+    if (object_) object_->finish();
   }
 
  private:
-  std::string name_;
-  const json* object_ = nullptr;
-  std::vector<std::string> seen_;
+  std::optional<slproto::JsonObject> object_;
 };
 
-}  // namespace
-
-void apply_config(const json& config, core::ReconstructionOptions& o) {
-  if (!config.is_object()) throw std::invalid_argument("config: the top level must be an object");
-  static const char* sections[] = {
-      "decode",       "triangulate", "fusion",          "flying_pixels",  "turntable_denoise",
-      "registration", "outliers",    "depth_smoothing", "view_selection", "model",
-      "mesh",         "normals"};
-  for (const auto& [key, value] : config.items())
-    if (std::find(std::begin(sections), std::end(sections), key) == std::end(sections))
-      throw std::invalid_argument("config: unknown section '" + key + "'");
-  Section(config, "decode")
+void apply_sections(const json& config, core::ReconstructionOptions& o) {
+  slproto::JsonObject top(config, "");
+  Section(top, "decode")
       .read("bit_depth", o.decode.bit_depth)
       .read("min_contrast_dn", o.decode.min_contrast_dn)
       .read("min_modulation_dn", o.decode.min_modulation_dn)
@@ -65,26 +43,26 @@ void apply_config(const json& config, core::ReconstructionOptions& o) {
       .read("smoothing_radius", o.decode.smoothing_radius)
       .read("smoothing_max_deviation_px", o.decode.smoothing_max_deviation_px)
       .finish();
-  Section(config, "triangulate")
+  Section(top, "triangulate")
       .read("newton_iterations", o.triangulate.newton_iterations)
       .read("max_residual_px", o.triangulate.max_residual_px)
       .read("min_depth_mm", o.triangulate.min_depth_mm)
       .read("max_depth_mm", o.triangulate.max_depth_mm)
       .finish();
-  Section(config, "fusion").read("agreement_mm", o.fusion.agreement_mm).finish();
-  Section(config, "flying_pixels")
+  Section(top, "fusion").read("agreement_mm", o.fusion.agreement_mm).finish();
+  Section(top, "flying_pixels")
       .read("enabled", o.remove_flying_pixels)
       .read("max_abs_mm", o.flying_pixels.max_abs_mm)
       .read("relative", o.flying_pixels.relative)
       .finish();
-  Section(config, "turntable_denoise")
+  Section(top, "turntable_denoise")
       .read("enabled", o.denoise_turntable)
       .read("min_height_mm", o.turntable_denoise.min_height_mm)
       .read("max_height_mm", o.turntable_denoise.max_height_mm)
       .read("radius_mm", o.turntable_denoise.radius_mm)
       .finish();
   std::string mode = o.registration.mode == core::RefinementMode::joint ? "joint" : "sequential";
-  Section(config, "registration")
+  Section(top, "registration")
       .read("enabled", o.register_views)
       .read("mode", mode)
       .read("gates_mm", o.registration.icp.gates_mm)
@@ -94,54 +72,92 @@ void apply_config(const json& config, core::ReconstructionOptions& o) {
       .read("turntable_prior_deg", o.registration.turntable_prior_deg)
       .read("turntable_prior_mm", o.registration.turntable_prior_mm)
       .finish();
+  // The gates are the ICP's search radii, coarse to fine: each must be a length a point can be
+  // off by (above 0, at most 10 m), checked here so the message names the field, not the stage.
+  if (o.registration.icp.gates_mm.empty() || o.registration.icp.gates_mm.size() > 16)
+    throw slproto::JsonFieldError("registration.gates_mm: expected 1 to 16 gates, got " +
+                                  std::to_string(o.registration.icp.gates_mm.size()));
+  for (std::size_t i = 0; i < o.registration.icp.gates_mm.size(); ++i) {
+    const double gate = o.registration.icp.gates_mm[i];
+    if (!(gate > 0 && gate <= 10000)) {
+      char shown[32];
+      std::snprintf(shown, sizeof shown, "%.6g", gate);
+      throw slproto::JsonFieldError("registration.gates_mm[" + std::to_string(i) + "]: " + shown +
+                                    " is out of range (allowed above 0, at most 10000 mm)");
+    }
+  }
   if (mode == "joint")
     o.registration.mode = core::RefinementMode::joint;
   else if (mode == "sequential")
     o.registration.mode = core::RefinementMode::sequential;
   else
     throw std::invalid_argument("config: registration.mode must be \"joint\" or \"sequential\", not \"" + mode + "\"");
-  Section(config, "outliers")
+  Section(top, "outliers")
       .read("enabled", o.remove_outliers)
       .read("k", o.outliers.k)
       .read("std_ratio", o.outliers.std_ratio)
       .finish();
-  Section(config, "depth_smoothing")
+  Section(top, "depth_smoothing")
       .read("enabled", o.smooth_depth)
       .read("window_radius_mm", o.depth_smoothing.window_radius_mm)
       .read("max_window_radius_px", o.depth_smoothing.max_window_radius_px)
       .read("max_depth_slope", o.depth_smoothing.max_depth_slope)
       .read("min_neighbors", o.depth_smoothing.min_neighbors)
       .finish();
-  Section(config, "view_selection")
+  Section(top, "view_selection")
       .read("enabled", o.select_best_views)
       .read("max_incidence_deg", o.overlap.max_incidence_deg)
       .read("same_spot_mm", o.overlap.same_spot_mm)
       .read("same_spot_footprints", o.overlap.same_spot_footprints)
       .finish();
-  Section(config, "normals")
+  Section(top, "normals")
       .read("window_radius", o.grid_normals.window_radius)
       .read("max_neighbor_distance_mm", o.grid_normals.max_neighbor_distance_mm)
       .read("min_neighbors", o.grid_normals.min_neighbors)
       .finish();
-  Section(config, "model").read("voxel_mm", o.voxel_mm).read("normal_neighbors", o.normal_neighbors).finish();
-  Section(config, "mesh")
+  // One knob for every noise-adaptive limit (docs/pipeline.md): the decoder's smoothing gate, the
+  // flying-pixel limit and the fusion agreement.
+  double noise_factor = o.noise_factor;
+  Section(top, "noise").read("factor", noise_factor).finish();
+  o.noise_factor = noise_factor;
+  o.decode.noise_factor = static_cast<float>(noise_factor);
+  Section(top, "model").read("voxel_mm", o.voxel_mm).read("normal_neighbors", o.normal_neighbors).finish();
+  std::string mesh_mode = core::mesh_mode_name(o.mesh.mode);
+  Section(top, "mesh")
       .read("enabled", o.build_mesh)
-      .read("resolution", o.mesh.resolution)
-      .read("density_trim_ratio", o.mesh.density_trim_ratio)
+      .read("mode", mesh_mode)
+      .read("cell_mm", o.mesh.cell_mm)
+      .read("cell_spacing_factor", o.mesh.cell_spacing_factor)
+      .read("min_cell_mm", o.mesh.min_cell_mm)
+      .read("kernel_factor", o.mesh.kernel_factor)
+      .read("adaptivity", o.mesh.adaptivity)
+      .read("trim_factor", o.mesh.trim_factor)
+      .read("fill_holes_mm", o.mesh.fill_holes_mm)
       .finish();
+  if (!core::parse_mesh_mode(mesh_mode, o.mesh.mode))
+    throw std::invalid_argument("config: mesh.mode must be \"raw\" or \"watertight\", not \"" + mesh_mode + "\"");
+  top.finish();
+}
+
+}  // namespace
+
+void apply_config(const json& config, core::ReconstructionOptions& o) {
+  try {
+    apply_sections(config, o);
+  } catch (const slproto::JsonFieldError& e) {
+    throw std::invalid_argument(std::string("config: ") + e.what());
+  }
   o.check();
 }
 
 core::ReconstructionOptions load_config(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw io::IoError(path + ": cannot open the config file");
-  std::stringstream text;
-  text << in.rdbuf();
+  auto text = slproto::read_whole_file(path);
+  if (!text) throw io::IoError(text.error().message);
   json config;
   try {
-    config = json::parse(text.str());
-  } catch (const json::parse_error& e) {
-    throw io::IoError(path + ": not valid JSON (" + e.what() + ")");
+    config = slproto::parse_json_strict(*text);
+  } catch (const slproto::JsonFieldError& e) {
+    throw io::IoError(path + ": " + e.what());
   }
   core::ReconstructionOptions options;
   try {
@@ -201,11 +217,18 @@ json config_to_json(const core::ReconstructionOptions& o) {
        {{"window_radius", o.grid_normals.window_radius},
         {"max_neighbor_distance_mm", o.grid_normals.max_neighbor_distance_mm},
         {"min_neighbors", o.grid_normals.min_neighbors}}},
+      {"noise", {{"factor", o.noise_factor}}},
       {"model", {{"voxel_mm", o.voxel_mm}, {"normal_neighbors", o.normal_neighbors}}},
       {"mesh",
        {{"enabled", o.build_mesh},
-        {"resolution", o.mesh.resolution},
-        {"density_trim_ratio", o.mesh.density_trim_ratio}}},
+        {"mode", core::mesh_mode_name(o.mesh.mode)},
+        {"cell_mm", o.mesh.cell_mm},
+        {"cell_spacing_factor", o.mesh.cell_spacing_factor},
+        {"min_cell_mm", o.mesh.min_cell_mm},
+        {"kernel_factor", o.mesh.kernel_factor},
+        {"adaptivity", o.mesh.adaptivity},
+        {"trim_factor", o.mesh.trim_factor},
+        {"fill_holes_mm", o.mesh.fill_holes_mm}}},
   };
 }
 

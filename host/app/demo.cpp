@@ -144,6 +144,8 @@ class Daemon {
 int run_demo(const DemoCommand& command, const Console& console) {
   const auto start = std::chrono::steady_clock::now();
   const fs::path out = command.output_dir;
+  if (const std::string capture = capture_in(out.string()); !capture.empty() && !command.overwrite)
+    return refuse_to_overwrite("demo", capture);
   fs::create_directories(out);
   const fs::path here = executable_dir();
   const std::string slscand = !command.slscand_path.empty()
@@ -191,6 +193,7 @@ int run_demo(const DemoCommand& command, const Console& console) {
   scan.pattern_period_us = 5000;
   scan.settle_ms = 50;
   if (command.scene == "ballbar") scan.measure_ball_bar = true;
+  scan.overwrite = command.overwrite;
   const int rc = run_scan(scan, console);
   daemon.stop();
   if (rc != exit_ok) return rc;

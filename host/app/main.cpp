@@ -1,10 +1,21 @@
 // slscan: the host command. A thin table of subcommands over the run_* functions.
 #include <CLI/CLI.hpp>
+#include <new>
+#include <oneapi/tbb/global_control.h>
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
 #include <iostream>
+#include <optional>
+#include <string>
+#include <vector>
 
+#include "batch.hpp"
 #include "calibrate.hpp"
+#include "inspect.hpp"
 #include "real_data.hpp"
 #include "run.hpp"
+#include "slproto/messages.hpp"
 #include "slscan/io/ply.hpp"
 #include "status.hpp"
 
@@ -12,11 +23,116 @@ namespace {
 
 using namespace slscan::app;
 
+// Set by the input-file validator when a named file does not exist: CLI11 reports that as a
+// validation error (its code 105), docs/cli.md as bad input (exit 2).
+bool g_missing_input_file = false;
+
+// CLI::ExistingFile / ExistingDirectory, remembering that the failure is a missing input.
+CLI::Validator existing(bool directory) {
+  return CLI::Validator(
+      [directory](std::string& path) -> std::string {
+        std::error_code ec;
+        const auto status = std::filesystem::status(path, ec);
+        if (!std::filesystem::exists(status)) {
+          g_missing_input_file = true;
+          return (directory ? "folder does not exist: " : "file does not exist: ") + path;
+        }
+        if (directory != std::filesystem::is_directory(status)) {
+          g_missing_input_file = true;
+          return (directory ? "not a folder: " : "is a folder, not a file: ") + path;
+        }
+        return {};
+      },
+      directory ? "DIR" : "FILE");
+}
+
+// Levenshtein distance, for "did you mean".
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = up;
+    }
+  }
+  return row[b.size()];
+}
+
+std::string closest(const std::string& word, const std::vector<std::string>& names) {
+  std::string best;
+  std::size_t best_distance = 3;  // at most two edits away
+  for (const auto& n : names) {
+    const std::size_t d = edit_distance(word, n);
+    if (d < best_distance && d < n.size()) best_distance = d, best = n;
+  }
+  return best;
+}
+
+std::vector<std::string> subcommand_names(CLI::App& app) {
+  std::vector<std::string> names;
+  for (const CLI::App* sub : app.get_subcommands([](CLI::App*) { return true; })) names.push_back(sub->get_name());
+  return names;
+}
+
+// The first word that is not a global flag must name a subcommand: say which word is wrong
+// (CLI11 would only say that a subcommand is required).
+bool check_subcommand_word(CLI::App& app, int argc, char** argv) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "-q" || arg == "--quiet" || arg == "--json-log") continue;
+    if (!arg.empty() && arg[0] == '-') return true;  // --help, --version or an option CLI11 names
+    const auto names = subcommand_names(app);
+    if (std::find(names.begin(), names.end(), arg) != names.end()) return true;
+    std::string list;
+    for (const auto& n : names) list += (list.empty() ? "" : ", ") + n;
+    const std::string suggestion = closest(arg, names);
+    std::cerr << "slscan: unknown command '" << arg << "'"
+              << (suggestion.empty() ? std::string() : " (did you mean '" + suggestion + "'?)")
+              << "; commands: " << list << "\nRun 'slscan --help' for more information.\n";
+    return false;
+  }
+  return true;
+}
+
+// CLI11's errors as docs/cli.md's exit codes: a missing input file is bad input (2), anything
+// else wrong on the command line is exit 1; --help and --version exit 0.
+int parse_failure(CLI::App& app, const CLI::ParseError& e) {
+  if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) return app.exit(e);  // --help, --version
+  const CLI::App* sub = nullptr;
+  for (const CLI::App* s : app.get_subcommands()) sub = s;
+  const std::string who = sub ? "slscan " + sub->get_name() : "slscan";
+  std::string message = e.what();
+  if (dynamic_cast<const CLI::ExtrasError*>(&e) != nullptr) {
+    const std::vector<std::string> extras = sub ? sub->remaining() : app.remaining();
+    if (!extras.empty()) {
+      const std::string& word = extras.front();
+      if (!word.empty() && word[0] == '-') {
+        std::vector<std::string> options;
+        for (const CLI::Option* o : (sub ? sub : &app)->get_options())
+          for (const auto& n : o->get_lnames()) options.push_back("--" + n);
+        const std::string suggestion = closest(word.substr(0, word.find('=')), options);
+        message = "unknown option '" + word + "'" +
+                  (suggestion.empty() ? std::string() : " (did you mean '" + suggestion + "'?)");
+      } else {
+        message = "unexpected argument '" + word + "'";
+      }
+    }
+  }
+  std::cerr << who << ": " << message << "\nRun '" << who << " --help' for more information.\n";
+  return g_missing_input_file ? exit_bad_input : exit_usage;
+}
+
 }  // namespace
 
-int main(int argc, char** argv) {
-  CLI::App app{"slscan: structured-light 3D scanning host (scan, reprocess, calibrate, measure, demo)"};
+static int run_command_line(int argc, char** argv) {
+  CLI::App app{"slscan: structured-light 3D scanning host (scan, reprocess, calibrate, measure, inspect, demo)"};
   app.require_subcommand(1);
+  app.set_version_flag("--version",
+                       "slscan " SLSCAN_VERSION " (slproto " + std::to_string(slproto::protocol_version) + ")");
   Console console;
   app.add_flag("-q,--quiet", console.quiet, "Print nothing but errors and the final figures");
   app.add_flag("--json-log", console.json_log, "Log as one JSON object per line on stderr");
@@ -25,31 +141,75 @@ int main(int argc, char** argv) {
   auto* reprocess_cmd = app.add_subcommand("reprocess", "Reconstruct a recorded capture file");
   reprocess_cmd->add_option("capture", reprocess.capture_path, "Capture file (.slcap)")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(existing(false));
   reprocess_cmd->add_option("--calib", reprocess.calibration_path, "Calibration file (JSON)")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(existing(false));
   reprocess_cmd->add_option("--out", reprocess.output_dir, "Output folder")->required();
   reprocess_cmd->add_option("--config", reprocess.config_path, "Reconstruction parameters (JSON)")
-      ->check(CLI::ExistingFile);
+      ->check(existing(false));
 
   ScanCommand scan;
   std::string connect = "127.0.0.1:7878";
   auto* scan_cmd = app.add_subcommand("scan", "Scan with a connected scanner, record the capture and reconstruct it");
   scan_cmd->add_option("--connect", connect, "Scanner address HOST:PORT")->capture_default_str();
-  scan_cmd->add_option("--calib", scan.calibration_path, "Calibration file (JSON)")
-      ->required()
-      ->check(CLI::ExistingFile);
+  scan_cmd->add_option("--calib", scan.calibration_path, "Calibration file (JSON)")->required()->check(existing(false));
   scan_cmd->add_option("--out", scan.output_dir, "Output folder")->required();
-  scan_cmd->add_option("--config", scan.config_path, "Reconstruction parameters (JSON)")->check(CLI::ExistingFile);
+  scan_cmd->add_option("--config", scan.config_path, "Reconstruction parameters (JSON)")->check(existing(false));
   scan_cmd->add_option("--angles", scan.angles_deg, "Turntable angles in degrees")->capture_default_str();
   scan_cmd->add_option("--projectors", scan.projectors, "Projector ids (0 left, 1 right)")->capture_default_str();
   scan_cmd->add_option("--exposure-us", scan.exposure_us, "Exposure per pattern")->capture_default_str();
   scan_cmd->add_option("--period-us", scan.pattern_period_us, "Pattern period")->capture_default_str();
   scan_cmd->add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
+  scan_cmd
+      ->add_option("--stall-timeout-s", scan.stall_timeout_s,
+                   "Fail the scan (keeping what arrived) when the scanner sends no frame for this long")
+      ->check(CLI::Range(1, 3600))
+      ->capture_default_str();
   scan_cmd->add_option("--token-file", scan.token_file, "File holding the scanner's shared token");
+  scan_cmd->add_flag("--compress", scan.compress,
+                     "Record the capture with zstd-compressed frames (lossless; reprocess reads both)");
+  scan_cmd->add_flag("--overwrite", scan.overwrite,
+                     "Replace the capture already in --out (without it, such a folder is refused)");
   scan_cmd->add_flag("--measure-ballbar", scan.measure_ball_bar,
                      "Fit the ball bar in the model and put its figures in the reports");
+
+  ConvertCommand convert;
+  auto* convert_cmd = app.add_subcommand(
+      "convert", "Rewrite a capture with zstd-compressed frames (--compress) or raw (--no-compress)");
+  convert_cmd->add_option("input", convert.input_path, "Capture file (.slcap)")->required()->check(CLI::ExistingFile);
+  convert_cmd->add_option("output", convert.output_path, "Capture file to write")->required();
+  convert_cmd->add_flag("--compress,!--no-compress", convert.compress, "Compress frames (default) or store them raw");
+
+  auto* batch_cmd = app.add_subcommand("batch", "Reprocess many captures: a Slurm array job, or locally");
+  batch_cmd->require_subcommand(1);
+  BatchPlanCommand batch_plan;
+  auto* batch_plan_cmd = batch_cmd->add_subcommand(
+      "plan", "Write the job list (ROOT/jobs.json) and the sbatch array script (ROOT/batch.sbatch)");
+  batch_plan_cmd->add_option("captures", batch_plan.captures, "Capture files (.slcap)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  batch_plan_cmd->add_option("--calib", batch_plan.calibration_path, "Calibration file (JSON)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  batch_plan_cmd->add_option("--config", batch_plan.config_path, "Reconstruction parameters (JSON)")
+      ->check(CLI::ExistingFile);
+  batch_plan_cmd->add_option("--out", batch_plan.root, "Batch folder ROOT")->required();
+  batch_plan_cmd->add_option("--partition", batch_plan.partition, "Slurm partition (default: the cluster's)");
+  BatchRunCommand batch_run;
+  auto* batch_run_cmd = batch_cmd->add_subcommand("run", "Run the batch's jobs that are not done on this machine");
+  batch_run_cmd->add_option("root", batch_run.root, "Batch folder")->required()->check(CLI::ExistingDirectory);
+  batch_run_cmd->add_option("--jobs,-j", batch_run.jobs, "Tasks at a time")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 256));
+  BatchStatusCommand batch_status;
+  auto* batch_status_cmd = batch_cmd->add_subcommand("status", "Done, failed (with why), running and pending jobs");
+  batch_status_cmd->add_option("root", batch_status.root, "Batch folder")->required()->check(CLI::ExistingDirectory);
+  batch_status_cmd->add_flag("--json", batch_status.json, "Print the status as JSON");
+  BatchTaskCommand batch_task;
+  auto* batch_task_cmd = batch_cmd->add_subcommand("task", "Do one job of the batch (what each Slurm array task runs)");
+  batch_task_cmd->add_option("root", batch_task.root, "Batch folder")->required()->check(CLI::ExistingDirectory);
+  batch_task_cmd->add_option("--index", batch_task.index, "Job index ($SLURM_ARRAY_TASK_ID)")->required();
 
   StatusCommand status;
   auto* status_cmd =
@@ -64,24 +224,87 @@ int main(int argc, char** argv) {
   discover_cmd->add_flag("--json", discover.json, "Print the scanners as JSON");
 
   MeasureCommand measure;
-  auto* measure_cmd = app.add_subcommand("measure", "Fit an artefact in a model and print its figures");
-  measure_cmd->add_option("model", measure.model_path, "Point cloud (PLY)")->required()->check(CLI::ExistingFile);
+  auto* measure_cmd =
+      app.add_subcommand("measure", "VDI/VDE 2634-2 figures of an artefact found in a model (no ground truth)");
+  measure_cmd->add_option("model", measure.model_path, "Point cloud (PLY)")->required()->check(existing(false));
   bool want_ballbar = false, want_sphere = false, want_plane = false;
-  auto* ballbar_flag = measure_cmd->add_flag("--ballbar", want_ballbar,
-                                             "Two spheres: diameters, form errors, centre distance (default)");
-  auto* sphere_flag = measure_cmd->add_flag("--sphere", want_sphere, "One sphere: diameter and form error");
-  auto* plane_flag = measure_cmd->add_flag("--plane", want_plane, "A plane: flatness");
+  std::vector<double> ball_bar_diameters{measure.nominal_diameter_a_mm, measure.nominal_diameter_b_mm};
+  auto* ballbar_flag = measure_cmd->add_flag(
+      "--ballbar", want_ballbar, "The ball bar: PF and PS of each sphere, SD of their centre distance (default)");
+  auto* sphere_flag = measure_cmd->add_flag("--sphere", want_sphere, "One sphere (give --diameter-mm): PF and PS");
+  auto* plane_flag = measure_cmd->add_flag("--plane", want_plane, "The largest plane: flatness F");
   ballbar_flag->excludes(sphere_flag)->excludes(plane_flag);
   sphere_flag->excludes(plane_flag);
   measure_cmd->add_option("--reference-mm", measure.reference_distance_mm, "Ball bar's calibrated centre distance")
       ->capture_default_str();
+  measure_cmd
+      ->add_option("--diameters-mm", ball_bar_diameters, "Ball bar's calibrated sphere diameters (first, second)")
+      ->expected(2)
+      ->capture_default_str();
+  measure_cmd->add_option("--diameter-mm", measure.sphere_diameter_mm, "With --sphere: its calibrated diameter")
+      ->check(CLI::PositiveNumber);
+  measure_cmd->add_option("--band-mm", measure.rule.band_mm, "Region: points within this of the robust fit")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  measure_cmd
+      ->add_option("--cone-margin-deg", measure.rule.cone_margin_deg,
+                   "Region: added to each joint cone's half-angle (sphere and ball bar)")
+      ->check(CLI::Range(0.0, 89.0))
+      ->capture_default_str();
+  measure_cmd
+      ->add_option("--exclude-fraction", measure.rule.exclude_fraction,
+                   "Share of a feature's points left out as outliers (VDI/VDE 2634-2: at most 0.003)")
+      ->check(CLI::Range(0.0, 0.003))
+      ->capture_default_str();
+  auto mpe_option = [&](const char* name, std::optional<double>& value, const char* what) {
+    measure_cmd
+        ->add_option_function<double>(
+            name, [&value](const double& v) { value = v; }, what)
+        ->check(CLI::NonNegativeNumber);
+  };
+  mpe_option("--mpe-pf", measure.mpe.pf_um, "Maximum permissible probing error form PF (um): PASS / FAIL");
+  mpe_option("--mpe-ps", measure.mpe.ps_um, "Maximum permissible |probing error size PS| (um)");
+  mpe_option("--mpe-sd", measure.mpe.sd_um, "Maximum permissible |sphere-spacing error SD| (um)");
+  mpe_option("--mpe-f", measure.mpe.f_um, "Maximum permissible flatness error F (um)");
   measure_cmd->add_flag("--json", measure.json, "Print the figures as JSON");
+
+  InspectCommand inspect;
+  auto* inspect_cmd = app.add_subcommand(
+      "inspect", "Compare a scan with its nominal shape (STL, PLY, OBJ): best fit, signed deviation, PASS / FAIL");
+  inspect_cmd->add_option("model", inspect.model_path, "Scan (PLY point cloud)")->required()->check(existing(false));
+  inspect_cmd->add_option("--nominal", inspect.nominal_path, "Nominal mesh (STL, PLY with faces, OBJ)")
+      ->required()
+      ->check(existing(false));
+  inspect_cmd->add_option("--out", inspect.output_dir, "Output folder")->required();
+  inspect_cmd
+      ->add_option_function<double>(
+          "--tolerance", [&inspect](const double& v) { inspect.tolerance_mm = v; },
+          "Tolerance +-MM: PASS when --pass-percent of the points are within it")
+      ->check(CLI::PositiveNumber);
+  inspect_cmd->add_option("--pass-percent", inspect.pass_percent, "Share of points within tolerance for PASS")
+      ->check(CLI::Range(0.0, 100.0))
+      ->capture_default_str();
+  inspect_cmd
+      ->add_option("--max-distance", inspect.max_distance_mm,
+                   "Points farther from the nominal after the fit are not on the part (mm)")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  inspect_cmd->add_option("--nominal-units", inspect.nominal_units, "Unit of the nominal file")
+      ->check(CLI::IsMember({"auto", "mm", "m", "in"}))
+      ->capture_default_str();
+  inspect_cmd->add_flag("--no-coarse-search", inspect.scan_frame_only,
+                        "Fit from the scan frame only (no centroid / principal-axes candidates)");
+  inspect_cmd->add_option("--part-id", inspect.part_id, "Part identifier, for the reports");
+  inspect_cmd->add_option("--operator", inspect.operator_name, "Operator, for the reports");
+  inspect_cmd->add_option("--calib", inspect.calibration_path, "Calibration the scan was made with (hash, date)")
+      ->check(existing(false));
+  inspect_cmd->add_flag("--json", inspect.json, "Print the report as JSON");
 
   CalibrateCommand calibrate;
   auto* calibrate_cmd =
       app.add_subcommand("calibrate", "Calibrate camera, projectors and turntable from a calibration capture");
   calibrate_cmd->add_option("capture", calibrate.capture_dir, "Calibration capture folder (manifest.json + PNGs)")
-      ->check(CLI::ExistingDirectory);
+      ->check(existing(true));
   calibrate_cmd->add_option("--out", calibrate.output_path, "Calibration file to write (JSON)")->required();
   calibrate_cmd->add_option("--report", calibrate.report_path, "Also write the calibration report (JSON)");
   calibrate_cmd->add_flag("--no-turntable", calibrate.no_turntable, "Camera and projectors only");
@@ -99,27 +322,51 @@ int main(int argc, char** argv) {
       "import", "Turn another scanner's images, sequence description and calibration into a capture");
   import_cmd->add_option("description", import.description_path, "Sequence description (JSON, docs/real-data.md)")
       ->required()
-      ->check(CLI::ExistingFile);
-  import_cmd->add_option("--calib", import.calibration_path, "Calibration: OpenCV FileStorage or ours (JSON)")
+      ->check(existing(false));
+  std::vector<std::string> import_calibrations;
+  import_cmd
+      ->add_option("--calib", import_calibrations,
+                   "Calibration: OpenCV FileStorage (any key set, docs/real-data.md), Kalibr or ROS YAML, or ours "
+                   "(JSON); repeat for a calibration in several files")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(existing(false));
   import_cmd->add_option("--out", import.output_dir, "Output folder (capture.slcap, calibration.json)")->required();
   import_cmd->add_option("--pose-direction", import.pose_direction, "How the file's R, T map points")
       ->check(CLI::IsMember({"proj_from_cam", "cam_from_proj"}))
       ->capture_default_str();
+  import_cmd->add_flag("--detect", import.detect,
+                       "Find the conventions (bit order, phase direction and origin, axis, pose direction) from the "
+                       "data; writes DIR/description.json and DIR/detect.json");
+  import_cmd->add_flag("--force", import.force, "Write the capture even if the self-checks find it inconsistent");
 
   CompareCommand compare;
   auto* compare_cmd = app.add_subcommand("compare", "Differences between a measured cloud and a reference cloud");
   compare_cmd->add_option("measured", compare.measured_path, "Measured cloud (PLY)")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(existing(false));
   compare_cmd->add_option("reference", compare.reference_path, "Reference cloud (PLY)")
       ->required()
-      ->check(CLI::ExistingFile);
+      ->check(existing(false));
   compare_cmd
       ->add_option("--calib", compare.calibration_path, "Calibration, to find camera pixels of clouds without u, v")
-      ->check(CLI::ExistingFile);
+      ->check(existing(false));
   compare_cmd->add_option("--max-distance", compare.max_distance_mm, "Farther points count as unmatched (mm)")
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            try {
+              std::size_t used = 0;
+              const double v = std::stod(text, &used);
+              if (used == text.size() && std::isfinite(v) && v > 0) return {};
+            } catch (const std::exception&) {
+            }
+            return "must be a distance > 0 (mm), not " + text;
+          },
+          "MM > 0"))
+      ->capture_default_str();
+  compare_cmd
+      ->add_option("--min-matched", compare.min_matched,
+                   "Fewer measured points than this share within --max-distance: a warning and exit 8")
+      ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
   compare_cmd->add_option("--neighbors", compare.surface_neighbors, "Reference points per local surface")
       ->capture_default_str();
@@ -139,13 +386,20 @@ int main(int argc, char** argv) {
   demo_cmd->add_flag("--small", demo.small, "The 640 x 512 rig: a quick run");
   demo_cmd->add_flag("--true-calibration", demo.true_calibration,
                      "Scan with the rig's exact calibration instead of calibrating it first");
-  demo_cmd->add_option("--config", demo.config_path, "Reconstruction parameters (JSON)")->check(CLI::ExistingFile);
-  demo_cmd->add_option("--slscand", demo.slscand_path, "slscand executable")->check(CLI::ExistingFile);
-  demo_cmd->add_option("--board", demo.board_path, "Sim board file to start from")->check(CLI::ExistingFile);
+  demo_cmd->add_option("--config", demo.config_path, "Reconstruction parameters (JSON)")->check(existing(false));
+  demo_cmd->add_option("--slscand", demo.slscand_path, "slscand executable")->check(existing(false));
+  demo_cmd->add_option("--board", demo.board_path, "Sim board file to start from")->check(existing(false));
+  demo_cmd->add_flag("--overwrite", demo.overwrite,
+                     "Replace the capture of an earlier demo in --out (without it, such a folder is refused)");
 
 #endif
 
-  CLI11_PARSE(app, argc, argv);
+  if (!check_subcommand_word(app, argc, argv)) return exit_usage;
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return parse_failure(app, e);
+  }
   install_interrupt_handler();
   try {
     if (*reprocess_cmd) return run_reprocess(reprocess, console);
@@ -154,15 +408,31 @@ int main(int argc, char** argv) {
       return run_scan(scan, console);
     }
     if (*status_cmd) return run_status(status, console);
+    if (*convert_cmd) return run_convert(convert, console);
+    if (*batch_plan_cmd) return run_batch_plan(batch_plan, console);
+    if (*batch_run_cmd) return run_batch_run(batch_run, console);
+    if (*batch_status_cmd) return run_batch_status(batch_status, console);
+    if (*batch_task_cmd) return run_batch_task(batch_task, console);
     if (*discover_cmd) return run_discover(discover, console);
-    if (*import_cmd) return run_import(import, console);
+    if (*import_cmd) {
+      import.calibration_path = import_calibrations.front();
+      import.more_calibration_paths.assign(import_calibrations.begin() + 1, import_calibrations.end());
+      return run_import(import, console);
+    }
     if (*calibrate_cmd) return run_calibrate(calibrate, console);
     if (*compare_cmd) return run_compare(compare, console);
+    if (*inspect_cmd) return run_inspect(inspect, console);
 #ifdef SLSCAN_WITH_DEMO
     if (*demo_cmd) return run_demo(demo, console);
 #endif
     if (*measure_cmd) {
+      if (want_sphere && !(measure.sphere_diameter_mm > 0)) {
+        std::cerr << "slscan measure: --sphere needs --diameter-mm (the sphere's calibrated diameter)\n";
+        return exit_usage;
+      }
       measure.artefact = want_sphere ? Artefact::sphere : (want_plane ? Artefact::plane : Artefact::ball_bar);
+      measure.nominal_diameter_a_mm = ball_bar_diameters.at(0);
+      measure.nominal_diameter_b_mm = ball_bar_diameters.at(1);
       return run_measure(measure, console);
     }
   } catch (const slscan::io::IoError& e) {
@@ -174,9 +444,25 @@ int main(int argc, char** argv) {
   } catch (const DeviceError& e) {
     std::cerr << "slscan: " << e.what() << "\n";
     return exit_device;
+  } catch (const std::filesystem::filesystem_error& e) {
+    // A folder or file the command was told to use and cannot (a file where a folder should be,
+    // no permission, a full disk): the user's to fix, named with its path.
+    std::cerr << "slscan: " << (e.path1().empty() ? std::string() : e.path1().string() + ": ") << e.code().message()
+              << " (" << e.what() << ")\n";
+    return exit_bad_input;
   } catch (const std::exception& e) {
     std::cerr << "slscan: internal error: " << e.what() << "\n";
     return exit_internal;
   }
   return exit_usage;
+}
+
+// TBB's worker threads (ours and OpenCV's) are joined before the process exits instead of being
+// torn down by static destructors: a thread still exiting while LeakSanitizer stops the world
+// makes its tracer crash ("Tracer caught signal 11", google/sanitizers#1353), which failed CI.
+int main(int argc, char** argv) {
+  tbb::task_scheduler_handle workers{tbb::attach{}};
+  const int code = run_command_line(argc, argv);
+  (void)tbb::finalize(workers, std::nothrow);
+  return code;
 }

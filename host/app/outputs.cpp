@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <numbers>
@@ -19,11 +20,39 @@ using nlohmann::json;
 namespace {
 
 json counts_json(const core::DecodeCounts& c) {
-  return {{"valid", c.valid},
-          {"saturated", c.saturated},
-          {"low_contrast", c.low_contrast},
-          {"low_modulation", c.low_modulation},
-          {"out_of_range", c.out_of_range}};
+  return {
+      {"valid", c.valid},
+      {"saturated", c.saturated},
+      {"low_contrast", c.low_contrast},
+      {"low_modulation", c.low_modulation},
+      {"out_of_range", c.out_of_range},
+      // Pixels at the clip level in a frame of each kind, whether that invalidated them or not.
+      {"clipped_by_kind",
+       {{"white", c.clipped.white}, {"black", c.clipped.black}, {"gray", c.clipped.gray}, {"phase", c.clipped.phase}}}};
+}
+
+json finite_or_null(bool measured, double v) { return measured && std::isfinite(v) ? json(v) : json(nullptr); }
+
+json checks_json(const core::DecodeChecks& c) {
+  json findings = json::array();
+  for (const auto& f : c.findings) findings.push_back({{"check", f.check}, {"cause", f.cause}, {"fix", f.fix}});
+  json out = {{"ran", c.ran},
+              {"flagged", c.flagged()},
+              {"findings", findings},
+              {"sampled_pixels", c.sampled_pixels},
+              {"row_step", c.row_step},
+              {"period_jump_rate", finite_or_null(c.ran && c.sampled_pixels > 0, c.period_jump_rate)},
+              {"gray_continuity", finite_or_null(c.has_gray, c.gray_continuity)},
+              {"gray_flip_rate", c.gray_flip_rate}};
+  if (c.has_phase) {
+    out["phase_shift_deg"] = c.phase_shift_deg;
+    out["sinusoid_share"] = finite_or_null(true, c.sinusoid_share);
+    out["phase_offset_rad"] = finite_or_null(c.has_offset, c.phase_offset_rad);
+    out["phase_offset_consistency"] = finite_or_null(c.has_offset, c.phase_offset_consistency);
+    out["phase_direction_agreement"] = finite_or_null(c.has_direction, c.phase_direction_agreement);
+    out["complementary_agreement"] = finite_or_null(c.has_complementary, c.complementary_agreement);
+  }
+  return out;
 }
 
 json counts_json(const core::TriangulateCounts& c) {
@@ -51,42 +80,90 @@ void write_bytes(const std::string& path, const std::vector<unsigned char>& byte
   io::write_file_atomically(path, std::string_view(reinterpret_cast<const char*>(bytes.data()), bytes.size()));
 }
 
-// Depth (camera z) as a colour map over the view's own range; black where nothing was measured.
-cv::Mat depth_map(const core::OrganizedCloud& cloud) {
-  float lo = std::numeric_limits<float>::max(), hi = std::numeric_limits<float>::lowest();
-  for (std::size_t i = 0; i < cloud.size(); ++i)
-    if (cloud.valid[i]) {
-      lo = std::min(lo, cloud.points[i].z());
-      hi = std::max(hi, cloud.points[i].z());
-    }
-  cv::Mat grey(cloud.height, cloud.width, CV_8UC1, cv::Scalar(0));
-  cv::Mat mask(cloud.height, cloud.width, CV_8UC1, cv::Scalar(0));
+// The 1st and 99th percentiles (nearest rank) of `values`: the range a picture's colours
+// span, so a few stray points (a background speck) do not flatten the object to one shade.
+std::pair<float, float> percentile_range(std::vector<float> values) {
+  if (values.empty()) return {0.0f, 0.0f};
+  const auto at = [&](double q) {
+    const auto rank = static_cast<std::size_t>(std::floor(q * static_cast<double>(values.size() - 1) + 0.5));
+    std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(rank), values.end());
+    return values[rank];
+  };
+  const float lo = at(0.01f);
+  const float hi = at(0.99f);
+  return {lo, hi};
+}
+
+std::string number_text(double v, const char* unit) {
+  char text[48];
+  std::snprintf(text, sizeof text, std::fabs(v) >= 100 ? "%.1f %s" : "%.3g %s", v, unit);
+  return text;
+}
+
+// `values` (one per pixel, valid where `valid`) as `colormap` colours over their 1st-99th
+// percentile range (beyond it: the end colours), black where nothing was measured, with a
+// colour bar below stating the range.
+cv::Mat colour_picture(const std::vector<float>& values, const std::vector<std::uint8_t>& valid, int width, int height,
+                       cv::ColormapTypes colormap, const std::string& title, const char* unit) {
+  std::vector<float> measured;
+  for (std::size_t i = 0; i < values.size(); ++i)
+    if (valid[i] && std::isfinite(values[i])) measured.push_back(values[i]);
+  const auto [lo, hi] = percentile_range(measured);
   const float span = hi > lo ? hi - lo : 1.0f;
-  for (int v = 0; v < cloud.height; ++v)
-    for (int u = 0; u < cloud.width; ++u) {
-      const std::size_t i =
-          static_cast<std::size_t>(v) * static_cast<std::size_t>(cloud.width) + static_cast<std::size_t>(u);
-      if (!cloud.valid[i]) continue;
-      grey.at<unsigned char>(v, u) = static_cast<unsigned char>(1 + 254.0f * (cloud.points[i].z() - lo) / span);
-      mask.at<unsigned char>(v, u) = 255;
-    }
+  cv::Mat grey(height, width, CV_8UC1, cv::Scalar(0));
+  cv::Mat mask(height, width, CV_8UC1, cv::Scalar(0));
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    if (!valid[i] || !std::isfinite(values[i])) continue;
+    const float t = std::clamp((values[i] - lo) / span, 0.0f, 1.0f);
+    const int v = static_cast<int>(i / static_cast<std::size_t>(width)),
+              u = static_cast<int>(i % static_cast<std::size_t>(width));
+    grey.at<unsigned char>(v, u) = static_cast<unsigned char>(std::lround(255.0f * t));
+    mask.at<unsigned char>(v, u) = 255;
+  }
   cv::Mat colour;
-  cv::applyColorMap(grey, colour, cv::COLORMAP_TURBO);
-  cv::Mat out(colour.size(), colour.type(), cv::Scalar(0, 0, 0));
-  colour.copyTo(out, mask);
+  cv::applyColorMap(grey, colour, colormap);
+  // The bar: a strip below the picture, the scale from the 1st to the 99th percentile.
+  const int panel = std::max(44, height / 9);
+  cv::Mat out(height + panel, width, CV_8UC3, cv::Scalar(0, 0, 0));
+  colour.copyTo(out(cv::Rect(0, 0, width, height)), mask);
+  cv::Mat strip(1, 256, CV_8UC1);
+  for (int i = 0; i < 256; ++i) strip.at<unsigned char>(0, i) = static_cast<unsigned char>(i);
+  cv::Mat strip_colour;
+  cv::applyColorMap(strip, strip_colour, colormap);
+  const int margin = std::max(4, width / 40);
+  const cv::Rect bar(margin, height + panel / 8, std::max(1, width - 2 * margin), std::max(4, panel * 3 / 10));
+  cv::Mat bar_pixels;
+  cv::resize(strip_colour, bar_pixels, bar.size(), 0, 0, cv::INTER_NEAREST);
+  bar_pixels.copyTo(out(bar));
+  const double scale = panel / 110.0;
+  const int thickness = std::max(1, static_cast<int>(std::lround(scale * 2)));
+  const int baseline_y = height + panel - panel / 8;
+  const cv::Scalar white(255, 255, 255);
+  const std::string left = measured.empty() ? "" : number_text(lo, unit);
+  const std::string right = measured.empty() ? "" : number_text(hi, unit);
+  const std::string middle = measured.empty() ? title + ": nothing measured" : title + ", 1st-99th percentile";
+  int base = 0;
+  const cv::Size right_size = cv::getTextSize(right, cv::FONT_HERSHEY_SIMPLEX, scale, thickness, &base);
+  const cv::Size middle_size = cv::getTextSize(middle, cv::FONT_HERSHEY_SIMPLEX, scale, thickness, &base);
+  cv::putText(out, left, {margin, baseline_y}, cv::FONT_HERSHEY_SIMPLEX, scale, white, thickness, cv::LINE_AA);
+  cv::putText(out, right, {width - margin - right_size.width, baseline_y}, cv::FONT_HERSHEY_SIMPLEX, scale, white,
+              thickness, cv::LINE_AA);
+  cv::putText(out, middle, {(width - middle_size.width) / 2, baseline_y}, cv::FONT_HERSHEY_SIMPLEX, scale, white,
+              thickness, cv::LINE_AA);
   return out;
 }
 
+// Depth (camera z), turbo colours over the view's 1st-99th percentile, with its colour bar.
+cv::Mat depth_map(const core::OrganizedCloud& cloud) {
+  std::vector<float> z(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) z[i] = cloud.points[i].z();
+  return colour_picture(z, cloud.valid, cloud.width, cloud.height, cv::COLORMAP_TURBO, "depth z", "mm");
+}
+
+// Decode quality (phase modulation), viridis over the view's 1st-99th percentile.
 cv::Mat quality_map(const core::OrganizedCloud& cloud) {
-  float hi = 0;
-  for (std::size_t i = 0; i < cloud.size(); ++i)
-    if (cloud.valid[i]) hi = std::max(hi, cloud.quality[i]);
-  cv::Mat grey(cloud.height, cloud.width, CV_8UC1, cv::Scalar(0));
-  for (std::size_t i = 0; i < cloud.size(); ++i)
-    if (cloud.valid[i] && hi > 0)
-      grey.at<unsigned char>(static_cast<int>(i) / cloud.width, static_cast<int>(i) % cloud.width) =
-          static_cast<unsigned char>(255.0f * cloud.quality[i] / hi);
-  return grey;
+  return colour_picture(cloud.quality, cloud.valid, cloud.width, cloud.height, cv::COLORMAP_VIRIDIS,
+                        "quality (modulation)", "DN");
 }
 
 // Fusion source: green both, blue left only, red right only, white rejected, black none.
@@ -117,6 +194,24 @@ cv::Mat source_map(const std::vector<core::FusionSource>& source, int width, int
 
 }  // namespace
 
+std::vector<unsigned char> depth_picture_png(const core::OrganizedCloud& cloud) { return encode_png(depth_map(cloud)); }
+std::vector<unsigned char> quality_picture_png(const core::OrganizedCloud& cloud) {
+  return encode_png(quality_map(cloud));
+}
+
+std::vector<std::string> self_check_findings(const core::ScanResult& result) {
+  std::vector<std::string> out;
+  for (const auto& view : result.views)
+    for (std::size_t side = 0; side < 2; ++side) {
+      const auto& p = view.projectors[side];
+      if (!p.present) continue;
+      for (const auto& f : p.checks.findings)
+        out.push_back("view " + std::to_string(view.view_index) + ", " + (side == 0 ? "left" : "right") +
+                      " projector: " + f.message());
+    }
+  return out;
+}
+
 json scan_result_to_json(const core::ScanResult& result) {
   json views = json::array();
   for (const auto& view : result.views) {
@@ -126,6 +221,12 @@ json scan_result_to_json(const core::ScanResult& result) {
       projectors.push_back({{"side", side == 0 ? "left" : "right"},
                             {"present", p.present},
                             {"decode", counts_json(p.decode)},
+                            {"checks", checks_json(p.checks)},
+                            {"noise",
+                             {{"coordinate_px", p.coordinate_noise_px},
+                              {"smoothing_max_deviation_px", p.smoothing_max_deviation_px},
+                              {"depth_mm", p.depth_noise_mm},
+                              {"depth_second_difference_mm", p.depth_second_difference_mm}}},
                             {"triangulate", counts_json(p.triangulate)},
                             {"decode_ms", p.decode_ms},
                             {"triangulate_ms", p.triangulate_ms}});
@@ -140,6 +241,10 @@ json scan_result_to_json(const core::ScanResult& result) {
                        {"right_only", view.fusion.right_only},
                        {"rejected", view.fusion.rejected}}},
                      {"flying_pixels_removed", view.flying_pixels.removed},
+                     {"limits",
+                      {{"noise_factor", view.noise_factor},
+                       {"flying_pixels_max_abs_mm", view.flying_max_abs_mm},
+                       {"fusion_agreement_mm", view.fusion_agreement_mm}}},
                      {"turntable_denoise",
                       {{"input", view.turntable_denoise.input},
                        {"kept", view.turntable_denoise.kept},
@@ -175,7 +280,10 @@ json scan_result_to_json(const core::ScanResult& result) {
     registration["pairs"] = pairs;
     registration["iterations"] = result.registration.iterations;
   }
-  json out = {{"views", views},
+  json flagged = json::array();
+  for (const auto& line : self_check_findings(result)) flagged.push_back(line);
+  json out = {{"self_check", {{"flagged", !flagged.empty()}, {"findings", flagged}}},
+              {"views", views},
               {"registration", registration},
               {"model",
                {{"merged_points", result.merged_points},
@@ -186,11 +294,26 @@ json scan_result_to_json(const core::ScanResult& result) {
               {"stage_ms", result.stage_ms}};
   if (result.meshed) {
     const auto topology = core::mesh_topology(result.mesh.mesh);
-    out["mesh"] = {{"vertices", result.mesh.mesh.vertices.size()},
+    const core::MeshStats& st = result.mesh.stats;
+    out["mesh"] = {{"mode", core::mesh_mode_name(result.mesh.mode)},
+                   {"vertices", result.mesh.mesh.vertices.size()},
                    {"triangles", result.mesh.mesh.triangles.size()},
                    {"closed", topology.closed()},
                    {"cell_mm", result.mesh.cell_mm},
-                   {"trimmed_triangles", result.mesh.trimmed_triangles}};
+                   {"spacing_mm", st.spacing_mm},
+                   {"mesh_ms", st.mesh_ms},
+                   {"points_used", st.points_used},
+                   {"isolated_points", st.isolated_points},
+                   {"trimmed_triangles", result.mesh.trimmed_triangles},
+                   {"dropped_piece_triangles", st.dropped_piece_triangles},
+                   {"holes", st.holes},
+                   {"holes_filled", st.holes_filled},
+                   {"holes_left_open", st.holes_left_open},
+                   {"filled_triangles", st.filled_triangles},
+                   {"rejected_triangles", st.rejected_triangles},
+                   {"self_intersections", st.self_intersections}};
+  } else if (!result.mesh_error.empty()) {
+    out["mesh"] = {{"error", result.mesh_error}};
   }
   return out;
 }
@@ -243,7 +366,10 @@ std::vector<unsigned char> render_preview_png(const core::PointCloud& cloud, dou
   return encode_png(closed);
 }
 
-OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, json report) {
+namespace {
+
+// The whole set, into `dir` (the staging folder), report.json last.
+OutputFiles write_set(const std::string& dir, const core::ScanResult& result, json report) {
   namespace fs = std::filesystem;
   fs::create_directories(fs::path(dir) / "views");
   fs::create_directories(fs::path(dir) / "pictures");
@@ -259,7 +385,10 @@ OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& r
     files.mesh_ply = (fs::path(dir) / "mesh.ply").string();
     files.mesh_stl = (fs::path(dir) / "mesh.stl").string();
     io::write_mesh_ply(files.mesh_ply, result.mesh.mesh.vertices, result.mesh.mesh.normals, triangles,
-                       {.binary = true, .comments = {"slscan mesh, turntable frame, mm"}});
+                       {.binary = true,
+                        .comments = {std::string("slscan mesh (") + core::mesh_mode_name(result.mesh.mode) +
+                                     "), turntable frame, mm; face property filled = 1: closes a hole"}},
+                       result.mesh.mesh.filled);
     io::write_stl(files.mesh_stl, result.mesh.mesh.vertices, triangles, "slscan mesh, turntable frame, mm");
   }
   for (std::size_t i = 0; i < result.view_products.size(); ++i) {
@@ -301,6 +430,106 @@ OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& r
                                                {report_viewer_js(), report_viewer_missing_reason()}));
   files.report_json = (fs::path(dir) / "report.json").string();
   io::write_file_atomically(files.report_json, report.dump(2) + "\n");
+  return files;
+}
+
+namespace fs = std::filesystem;
+
+// What a run writes into its output folder; a new run replaces all of them, so nothing of an
+// earlier run (a mesh, a view, a picture the new run does not make) stays beside the new set.
+// report.json is not in the list: it goes out first and comes in last.
+constexpr std::array<const char*, 6> set_entries = {"model.ply", "mesh.ply", "mesh.stl",
+                                                    "views",     "pictures", "report.html"};
+constexpr const char* staging_name = ".slscan-staging";
+constexpr const char* previous_name = ".slscan-previous";
+
+[[noreturn]] void fail(const fs::path& path, const std::string& what, const std::error_code& error) {
+  throw io::IoError(path.string() + ": " + what + " (" + error.message() + ")");
+}
+
+bool present(const fs::path& path) {
+  std::error_code error;
+  return fs::symlink_status(path, error).type() != fs::file_type::not_found && !error;
+}
+
+void remove_all_or_throw(const fs::path& path) {
+  std::error_code error;
+  fs::remove_all(path, error);
+  if (error) fail(path, "cannot remove", error);
+}
+
+void rename_or_throw(const fs::path& from, const fs::path& to) {
+  std::error_code error;
+  fs::rename(from, to, error);
+  if (error) fail(from, "cannot rename to " + to.string(), error);
+}
+
+// Moves the staged set into `out`: the old report.json and the old set aside (renames, no
+// space needed), the new set in, report.json last; then the old set is deleted. If a rename
+// fails, the old set is put back.
+void commit_set(const fs::path& stage, const fs::path& out) {
+  const fs::path previous = out / previous_name;
+  remove_all_or_throw(previous);
+  std::error_code error;
+  if (!fs::create_directory(previous, error) || error) fail(previous, "cannot create", error);
+  std::vector<std::string> moved_aside, moved_in;
+  const auto all = [&] {
+    std::vector<std::string> names(set_entries.begin(), set_entries.end());
+    names.insert(names.begin(), "report.json");
+    return names;
+  }();
+  try {
+    for (const auto& name : all)
+      if (present(out / name)) {
+        rename_or_throw(out / name, previous / name);
+        moved_aside.push_back(name);
+      }
+    for (const auto& name : all) {
+      if (name == "report.json" || !present(stage / name)) continue;
+      rename_or_throw(stage / name, out / name);
+      moved_in.push_back(name);
+    }
+    rename_or_throw(stage / "report.json", out / "report.json");
+  } catch (...) {
+    for (const auto& name : moved_in) fs::remove_all(out / name, error);
+    for (const auto& name : moved_aside) fs::rename(previous / name, out / name, error);
+    fs::remove_all(stage, error);
+    fs::remove_all(previous, error);
+    throw;
+  }
+  fs::remove_all(previous, error);
+  fs::remove_all(stage, error);
+}
+
+}  // namespace
+
+OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, json report) {
+  const fs::path out = fs::path(dir).lexically_normal();
+  std::error_code error;
+  fs::create_directories(out, error);
+  if (error) fail(out, "cannot create the output folder", error);
+  if (!fs::is_directory(out, error)) throw io::IoError(out.string() + ": not a folder (--out names the output folder)");
+  // The set is written whole into a hidden folder inside `out` (so on the same file system,
+  // whatever is mounted where) and only then moved into place: a run that fails midway (a full
+  // disk) leaves the previous complete set as it was.
+  const fs::path stage = out / staging_name;
+  remove_all_or_throw(stage);  // left by a run that was killed
+  OutputFiles staged;
+  try {
+    staged = write_set(stage.string(), result, std::move(report));
+  } catch (const std::exception& e) {
+    fs::remove_all(stage, error);
+    throw io::IoError("writing the outputs into " + out.string() + " failed: " + e.what() +
+                      (present(out / "report.json") ? "; the previous outputs there are as they were"
+                                                    : "; nothing was written there"));
+  }
+  commit_set(stage, out);
+  const auto moved = [&](const std::string& path) {
+    return path.empty() ? path : (out / fs::path(path).lexically_relative(stage)).string();
+  };
+  OutputFiles files{moved(staged.model_ply),   moved(staged.mesh_ply),    moved(staged.mesh_stl),
+                    moved(staged.report_json), moved(staged.report_html), {}};
+  for (const auto& p : staged.pictures) files.pictures.push_back(moved(p));
   return files;
 }
 

@@ -14,6 +14,8 @@
 namespace slscan::app {
 
 nlohmann::json scan_result_to_json(const core::ScanResult& result);
+// Every self-check finding of the scan, one line each ("view 0, left projector: cause: fix").
+std::vector<std::string> self_check_findings(const core::ScanResult& result);
 nlohmann::json ball_bar_to_json(const core::BallBarResult& ball_bar);
 
 struct OutputFiles {
@@ -24,6 +26,12 @@ struct OutputFiles {
 // Writes everything into `dir` (created if needed). `report` is completed with the scan's
 // figures and written last, as report.json, just after report.html shows it.
 OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, nlohmann::json report);
+
+// A view's depth (camera z, turbo) and decode-quality (modulation, viridis) pictures as PNG:
+// colours span the view's 1st-99th percentile (beyond: the end colours), black = nothing
+// measured, and a colour bar below the picture states the range.
+std::vector<unsigned char> depth_picture_png(const core::OrganizedCloud& cloud);
+std::vector<unsigned char> quality_picture_png(const core::OrganizedCloud& cloud);
 
 // A shaded splat rendering of a cloud with normals, seen from `azimuth_deg` around +z and
 // `elevation_deg` above the xy plane; 8-bit grey, `size` x `size`.

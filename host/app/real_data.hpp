@@ -15,8 +15,14 @@ namespace slscan::app {
 struct ImportCommand {
   std::string description_path;  // JSON sequence description (images resolve next to it)
   std::string calibration_path;  // OpenCV FileStorage (Kc/kc/Kp/kp/Rp/Tp or K1/D1/K2/D2/R/T) or our JSON
-  std::string output_dir;        // gets capture.slcap and calibration.json
-  std::string pose_direction = "proj_from_cam";  // how the file's R, T map points (or "cam_from_proj")
+  std::vector<std::string> more_calibration_paths;  // further files of the calibration (merged; ROS: the projector's)
+  std::string output_dir;                           // gets capture.slcap and calibration.json
+  std::string pose_direction = "proj_from_cam";     // how the file's R, T map points (or "cam_from_proj")
+  // Try the conventions a description can get wrong and import with the one the data agrees
+  // with best; writes DIR/description.json (the corrected description) and DIR/detect.json.
+  bool detect = false;
+  // Write the capture even when the self-checks find that it contradicts its description.
+  bool force = false;
 };
 int run_import(const ImportCommand& command, const Console& console);
 
@@ -29,7 +35,10 @@ struct CompareCommand {
   // Take both clouds' pixels from the calibration's camera even when the PLY has u/v: for
   // clouds whose u/v are not the frames' pixels (SLStudio stores its undistorted image's).
   bool project_pixels = false;
-  double max_distance_mm = 5.0;
+  double max_distance_mm = 5.0;  // > 0
+  // Fewer than this share of the measured points within max_distance_mm of the reference: a
+  // warning naming the likely cause (the clouds are in different frames) and exit_unmatched.
+  double min_matched = 0.5;
   int surface_neighbors = 8;
   bool json = false;        // print the figures as JSON on stdout
   std::string report_path;  // also write them as JSON here ("" = no file)

@@ -150,22 +150,57 @@ std::string summary_section(const json& report) {
   if (!at(report, {"board", "name"}).is_null())
     rows.push_back({"board", cell(at(report, {"board", "name"})) + " (" + cell(at(report, {"board", "software"})) +
                                  "), " + cell(at(report, {"board_frames_dropped"})) + " frames dropped"});
+  if (const json& link = at(report, {"camera_link"}); link.is_object())
+    rows.push_back({"camera link", cell(link.value("frames_lost", json())) + " frames lost, " +
+                                       cell(link.value("packets_missing", json())) + " packets missing, " +
+                                       cell(link.value("packets_resent", json())) + " resent (" +
+                                       cell(link.value("resend_requests", json())) + " resend requests)"});
   return "<section id=\"summary\"><h2>Summary</h2>\n" + key_value_table(rows) + "</section>\n";
+}
+
+// A judged figure ({"value_um", "mpe_um", "verdict"}) as "12.3 &micro;m PASS (MPE 20)".
+std::string judged_cell(const json& figure, bool sign = false) {
+  if (!figure.is_object() || !figure.contains("value_um")) return "&ndash;";
+  const double v = figure["value_um"].get<double>();
+  std::string out = (sign && v >= 0 ? "+" : "") + fixed(v, 1) + " &micro;m";
+  if (figure.contains("mpe_um")) {
+    const bool pass = figure.value("verdict", "") == "PASS";
+    out += std::string(" <span class=\"") + (pass ? "pass\">PASS" : "fail\">FAIL") + "</span> (MPE " +
+           fixed(figure["mpe_um"].get<double>(), 1) + " &micro;m)";
+  } else {
+    out += " <span class=\"note\">(no MPE given)</span>";
+  }
+  return out;
 }
 
 std::string measurement_section(const json& report) {
   const json& bar = at(report, {"measurement", "ball_bar"});
   if (bar.is_null()) return {};
-  std::string html = "<section id=\"measurement\"><h2>Ball bar</h2>\n";
+  std::string html = "<section id=\"measurement\"><h2>Ball bar (VDI/VDE 2634-2)</h2>\n";
   if (bar.contains("error")) return html + "<p class=\"warn\">Not measured: " + cell(bar["error"]) + "</p></section>\n";
-  html += key_value_table({{"centre distance", cell(bar["centre_distance_mm"], 4) + " mm"},
-                           {"error against the reference", cell(at(bar, {"distance_error_um"}), 1) + " &micro;m"}});
-  Table spheres({"sphere", "diameter (mm)", "form error (&micro;m)", "RMS (&micro;m)", "points", "centre (mm)"});
+  html += "<p class=\"note\">Measured from the scan alone, as a user measures (no ground truth). " +
+          (at(bar, {"region_rule", "text"}).is_null()
+               ? std::string()
+               : "Each sphere's region: " + cell(bar["region_rule"]["text"]) + ". ") +
+          "PF = range of the radial residuals, PS = fitted minus calibrated diameter, SD = centre distance minus "
+          "the calibrated reference length (docs/inspection.md).</p>\n";
+  html += key_value_table({{"centre distance", cell(bar["centre_distance_mm"], 4) + " mm (reference " +
+                                                   cell(at(bar, {"reference_distance_mm"}), 4) + " mm)"},
+                           {"SD, sphere-spacing error", judged_cell(at(bar, {"sd"}), true)}});
+  Table spheres({"sphere", "PF, probing error form", "PF with every point", "PS, probing error size",
+                 "diameter / calibrated (mm)", "fit RMS (&micro;m)", "points (left out)", "joint cones",
+                 "centre (mm)"});
   std::size_t i = 0;
   for (const auto& s : bar["spheres"]) {
     const json& c = s["centre_mm"];
-    spheres.row({std::to_string(i++), cell(s["diameter_mm"], 4), fixed(1000 * s["form_error_mm"].get<double>(), 1),
-                 fixed(1000 * s["rms_mm"].get<double>(), 1), cell(s["points"]),
+    std::string cones;
+    for (const auto& j : at(s, {"joints"}))
+      cones += (cones.empty() ? "" : ", ") + fixed(j["half_angle_deg"].get<double>(), 1) + "&deg;";
+    spheres.row({std::to_string(i++), judged_cell(at(s, {"pf"})), cell(at(s, {"pf_all_points_um"}), 1) + " &micro;m",
+                 judged_cell(at(s, {"ps"}), true),
+                 cell(s["diameter_mm"], 4) + " / " + cell(at(s, {"calibrated_diameter_mm"}), 4),
+                 cell(at(s, {"rms_um"}), 1), cell(at(s, {"points"})) + " (" + cell(at(s, {"left_out"})) + ")",
+                 cones.empty() ? "none" : cell(at(s, {"cone_points"})) + " points in " + cones,
                  "(" + cell(c[0], 3) + ", " + cell(c[1], 3) + ", " + cell(c[2], 3) + ")"});
   }
   return html + spheres.done() + "</section>\n";
@@ -313,7 +348,7 @@ th { background: #f3f5f7; } td:first-child { text-align: left; } table.kv th, ta
 #viewer { width: 100%; height: 560px; background: #20242a; position: relative; }
 #viewer canvas { display: block; }
 .viewer-missing, .viewer-error { color: #f3c0b8; padding: 24px; margin: 0; }
-.note { color: #5b6470; } .warn { color: #a3400e; }
+.note { color: #5b6470; } .warn { color: #a3400e; } .pass { color: #1a7f37; font-weight: 600; } .fail { color: #b42318; font-weight: 600; }
 .grid { display: flex; flex-wrap: wrap; gap: 10px; } figure { margin: 0; } figure img { width: 280px; display: block; border: 1px solid #ccd1d8; }
 figcaption { font-size: 12px; color: #5b6470; } .key { display: inline-block; width: 12px; height: 12px; border: 1px solid #888; margin: 0 4px 0 10px; vertical-align: middle; }
 pre { background: #f3f5f7; padding: 10px; overflow: auto; max-height: 400px; }
@@ -367,6 +402,38 @@ json embed_cloud(const core::PointCloud& cloud, std::size_t max_points) {
           {"normals", base64(reinterpret_cast<const unsigned char*>(normals.data()), normals.size())}};
 }
 
+// The decoder's self-checks: the findings first (they say what is wrong and what to change),
+// then the measured consistency per view and projector.
+std::string self_check_section(const json& report) {
+  const json& views = at(report, {"scan", "views"});
+  std::string html = "<section id=\"self-check\"><h2>Self-checks of the decode</h2>\n";
+  const json& findings = at(report, {"scan", "self_check", "findings"});
+  if (findings.is_array() && !findings.empty()) {
+    html += "<p class=\"warn\">The data contradicts its description:</p><ul>";
+    for (const auto& f : findings) html += "<li class=\"warn\">" + cell(f) + "</li>";
+    html += "</ul>\n";
+  } else {
+    html += "<p class=\"note\">Every redundant code agrees with the plan.</p>\n";
+  }
+  Table table({"view", "projector", "sampled px", "phase offset (rad)", "direction", "complementary", "Gray continuity",
+               "period jumps", "sinusoid", "clipped white / black / Gray / phase"});
+  auto share = [](const json& v) { return v.is_number() ? fixed(100 * v.get<double>(), 1) + " %" : "&ndash;"; };
+  for (const auto& v : views)
+    for (const auto& p : v["projectors"]) {
+      if (p["present"] != true || !p.contains("checks")) continue;
+      const json& c = p["checks"];
+      const json& k = at(p, {"decode", "clipped_by_kind"});
+      table.row({cell(v["view_index"]), cell(p["side"]), cell(c["sampled_pixels"]),
+                 c.value("phase_offset_rad", json()).is_number() ? cell(c["phase_offset_rad"], 3) : "&ndash;",
+                 share(c.value("phase_direction_agreement", json())), share(c.value("complementary_agreement", json())),
+                 share(c["gray_continuity"]), share(c["period_jump_rate"]), share(c.value("sinusoid_share", json())),
+                 k.is_null() ? "&ndash;"
+                             : cell(k["white"]) + " / " + cell(k["black"]) + " / " + cell(k["gray"]) + " / " +
+                                   cell(k["phase"])});
+    }
+  return html + table.done() + "</section>\n";
+}
+
 std::string render_report_html(const json& report, const core::PointCloud& model,
                                const std::vector<std::string>& pictures, const ReportViewer& viewer,
                                const ReportHtmlOptions& options) {
@@ -401,8 +468,9 @@ std::string render_report_html(const json& report, const core::PointCloud& model
             ". The model is in model.ply; the previews below show it.</p></div>\n";
   }
   html += "</section>\n";
-  html += summary_section(report) + measurement_section(report) + views_section(report) + registration_section(report) +
-          timings_section(report) + pictures_section(pictures) + provenance_section(report);
+  html += summary_section(report) + self_check_section(report) + measurement_section(report) + views_section(report) +
+          registration_section(report) + timings_section(report) + pictures_section(pictures) +
+          provenance_section(report);
   if (with_viewer) {
     if (viewer.js.find("</script") != std::string_view::npos)
       throw std::logic_error("the viewer bundle holds \"</script\" and cannot be inlined");

@@ -3,25 +3,25 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <csignal>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <fstream>
 #include <iostream>
-#include <memory>
 #include <nlohmann/json.hpp>
-#include <optional>
 
 #include "config.hpp"
 #include "outputs.hpp"
 #include "slproto/calibration.hpp"
-#include "slproto/capture.hpp"
 #include "slproto/handshake.hpp"
-#include "slproto/transport.hpp"
+#include "slproto/zstd_codec.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/io/capture_replay.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/session/live_scan.hpp"
+#include "slscan/session/reprocess.hpp"
 #include "status.hpp"
 
 #ifndef SLSCAN_VERSION
@@ -47,6 +47,21 @@ slproto::RigCalibration load_calibration_or_throw(const std::string& path) {
   return std::move(calibration).value();
 }
 
+// The output folder, checked before any work (and for scan created before the scanner is
+// asked for anything: the capture must have a place): a path that names a file, or a folder
+// that cannot be made, is the user's to fix (exit 2 naming it), not an internal error after the
+// scan.
+void prepare_output_folder(const std::string& dir, const std::string& option, bool create) {
+  namespace fs = std::filesystem;
+  std::error_code error;
+  const fs::file_status status = fs::status(dir, error);
+  if (fs::exists(status) && !fs::is_directory(status))
+    throw std::invalid_argument(option + " " + dir + ": exists and is not a folder");
+  if (fs::exists(status) || !create) return;
+  fs::create_directories(dir, error);
+  if (error) throw io::IoError(option + " " + dir + ": cannot create the folder (" + error.message() + ")");
+}
+
 core::ReconstructionOptions options_from(const std::string& config_path) {
   return config_path.empty() ? core::ReconstructionOptions{} : load_config(config_path);
 }
@@ -62,72 +77,11 @@ json provenance(const core::ReconstructionOptions& options, const slproto::RigCa
             {"camera_reprojection_rms_px", calibration.camera_reprojection_rms_px}}}};
 }
 
-// Feeds frames to a reconstructor made on the first frame (its size comes from the stream).
-class StreamReconstruction {
- public:
-  StreamReconstruction(const slproto::RigCalibration& calibration, const core::ReconstructionOptions& options)
-      : calibration_(calibration), options_(options) {}
-
-  void set_plan(const slproto::PatternPlan& plan) {
-    if (!(plan.config() == calibration_.pattern_plan))
-      throw io::IoError("the capture's pattern plan differs from the plan the calibration was made with: " +
-                        differences(plan.config(), calibration_.pattern_plan) + " (capture " + describe(plan.config()) +
-                        ", calibration " + describe(calibration_.pattern_plan) + ")");
-    plan_ = plan;
-  }
-
-  void add(const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
-    if (!plan_) throw io::IoError("a frame arrived before the scan request: the capture does not say its pattern plan");
-    if (!reconstructor_)
-      reconstructor_ = std::make_unique<core::ScanReconstructor>(calibration_, *plan_, static_cast<int>(header.width()),
-                                                                 static_cast<int>(header.height()), options_);
-    reconstructor_->add_frame(io::frame_info(header), payload);
-    received_.push_back(header);
-    received_.back().clear_timing_events();
-  }
-
-  core::ScanResult finish() {
-    if (!reconstructor_) throw io::IoError("the capture holds no frames");
-    return reconstructor_->finish();
-  }
-  const std::vector<slproto::pb::FrameHeader>& received() const { return received_; }
-
- private:
-  // "period_px 8 in the capture, 16 in the calibration; ..." for each field that differs.
-  static std::string differences(const slproto::PatternPlanConfig& capture, const slproto::PatternPlanConfig& calib) {
-    std::string out;
-    auto field = [&](const char* name, const std::string& a, const std::string& b) {
-      if (a == b) return;
-      out += (out.empty() ? "" : "; ") + std::string(name) + " " + a + " in the capture, " + b + " in the calibration";
-    };
-    auto yes_no = [](bool v) { return std::string(v ? "true" : "false"); };
-    field("projector_width", std::to_string(capture.projector_width), std::to_string(calib.projector_width));
-    field("projector_height", std::to_string(capture.projector_height), std::to_string(calib.projector_height));
-    field("axis", slproto::coding_axis_name(capture.axis), slproto::coding_axis_name(calib.axis));
-    field("period_px", std::to_string(capture.period_px), std::to_string(calib.period_px));
-    field("phase_steps", std::to_string(capture.phase_steps), std::to_string(calib.phase_steps));
-    field("complementary_bit", yes_no(capture.complementary_bit), yes_no(calib.complementary_bit));
-    field("with_white_black", yes_no(capture.with_white_black), yes_no(calib.with_white_black));
-    field("inverse_gray", yes_no(capture.inverse_gray), yes_no(calib.inverse_gray));
-    field("gray_low_bits", slproto::gray_low_bits_name(capture.gray_low_bits),
-          slproto::gray_low_bits_name(calib.gray_low_bits));
-    return out;
-  }
-  static std::string describe(const slproto::PatternPlanConfig& c) {
-    return std::to_string(c.projector_width) + "x" + std::to_string(c.projector_height) + " " +
-           slproto::coding_axis_name(c.axis) + " P=" + std::to_string(c.period_px) +
-           " N=" + std::to_string(c.phase_steps) + (c.complementary_bit ? " +complementary" : "") +
-           (c.with_white_black ? "" : " -white/black") + (c.inverse_gray ? " +inverse" : "") +
-           (c.gray_low_bits == slproto::GrayLowBits::centre
-                ? ""
-                : std::string(" ") + slproto::gray_low_bits_name(c.gray_low_bits));
-  }
-  slproto::RigCalibration calibration_;
-  core::ReconstructionOptions options_;
-  std::optional<slproto::PatternPlan> plan_;
-  std::unique_ptr<core::ScanReconstructor> reconstructor_;
-  std::vector<slproto::pb::FrameHeader> received_;
-};
+std::string seconds_text(double seconds) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.1f s", seconds);
+  return text;
+}
 
 void print_summary(const Console& console, const core::ScanResult& result, const OutputFiles& files, double seconds) {
   std::size_t both = 0, left = 0, right = 0, rejected = 0;
@@ -141,7 +95,63 @@ void print_summary(const Console& console, const core::ScanResult& result, const
                " points (fusion: " + std::to_string(both) + " both, " + std::to_string(left) + " left only, " +
                std::to_string(right) + " right only, " + std::to_string(rejected) + " rejected)" +
                (result.meshed ? ", mesh " + std::to_string(result.mesh.mesh.triangles.size()) + " triangles" : "") +
-               " in " + std::to_string(seconds).substr(0, 5) + " s -> " + files.model_ply);
+               " in " + seconds_text(seconds) + " -> " + files.model_ply);
+  if (result.meshed) {
+    char cell[32];
+    std::snprintf(cell, sizeof cell, "%.3g", result.mesh.cell_mm);
+    console.info(std::string("mesh (") + core::mesh_mode_name(result.mesh.mode) + ", cell " + cell +
+                 " mm): " + std::to_string(result.mesh.mesh.triangles.size()) + " triangles in " +
+                 seconds_text(result.mesh.stats.mesh_ms / 1000) + " -> " + files.mesh_ply);
+  } else if (!result.mesh_error.empty()) {
+    console.warn("no mesh: " + result.mesh_error);
+  }
+}
+
+// The camera transport's own counters (GenICam cameras; zeros for V4L2, libcamera, the sim):
+// a frame the stream lost is a frame the scan lacks, resends are the link's health.
+json camera_link_json(const slproto::pb::ScanDone& done, const Console& console) {
+  if (done.camera_frames_lost() != 0 || done.camera_packets_missing() != 0)
+    console.warn("the camera link lost " + std::to_string(done.camera_frames_lost()) + " frame(s) and " +
+                 std::to_string(done.camera_packets_missing()) +
+                 " packet(s) during the scan (docs/hardware.md: MTU, packet size, socket buffers)");
+  return {{"frames_lost", done.camera_frames_lost()},
+          {"packets_missing", done.camera_packets_missing()},
+          {"packets_resent", done.camera_packets_resent()},
+          {"resend_requests", done.camera_resend_requests()}};
+}
+
+// The outputs are written either way (report.json and report.html show the checks); a
+// contradiction makes the run fail with its own exit code, naming cause and fix.
+int report_self_checks(const Console& console, const core::ScanResult& result) {
+  const std::vector<std::string> findings = self_check_findings(result);
+  for (const auto& line : findings) console.warn("self-check: " + line);
+  if (findings.empty()) return exit_ok;
+  std::cerr << "slscan: the capture contradicts its description (" << findings.size() << " self-check finding"
+            << (findings.size() > 1 ? "s" : "") << " above; the outputs are written, report.html shows the checks)\n";
+  return exit_inconsistent;
+}
+
+// An empty reconstruction is a failure, not a result: says why (no complete view, or nothing
+// survived), naming the capture; nothing is written.
+void check_not_empty(const core::ScanResult& result, const std::string& capture, const std::string& kept) {
+  if (result.views.empty())
+    throw io::IoError(capture +
+                      ": no view has the complete frames of a projector (see the missing frames above): "
+                      "nothing to reconstruct, nothing written" +
+                      kept);
+  if (result.model.size() == 0) {
+    std::size_t decoded = 0, triangulated = 0;
+    for (const auto& view : result.views)
+      for (const auto& p : view.projectors)
+        if (p.present) {
+          decoded += p.decode.valid;
+          triangulated += p.triangulate.valid;
+        }
+    throw io::IoError(
+        capture + ": the reconstruction of " + std::to_string(result.views.size()) + " view(s) has no points (" +
+        std::to_string(decoded) + " pixels decoded, " + std::to_string(triangulated) +
+        " triangulated, none kept by the cleanup): check the calibration and --config; nothing written" + kept);
+  }
 }
 
 }  // namespace
@@ -189,149 +199,97 @@ int run_reprocess(const ReprocessRequest& request, const Console& console) {
   const auto start = Clock::now();
   const slproto::RigCalibration calibration = load_calibration_or_throw(request.calibration_path);
   const core::ReconstructionOptions options = options_from(request.config_path);
-  StreamReconstruction stream(calibration, options);
-  std::size_t expected_frames = 0;
-  const io::CaptureSummary summary = io::replay_capture(
-      request.capture_path,
-      [&](const slproto::pb::ScanRequest& scan_request) {
-        const slproto::PatternPlan plan = io::plan_of(scan_request);
-        stream.set_plan(plan);
-        expected_frames = plan.size() * static_cast<std::size_t>(scan_request.turntable_angles_deg_size()) *
-                          static_cast<std::size_t>(scan_request.projectors_size());
-      },
-      [&](const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
-        stream.add(header, payload);
-        console.progress("frames", stream.received().size(), expected_frames);
-      });
-  console.end_progress();
-  if (!summary.request) throw io::IoError(request.capture_path + ": the capture has no scan request");
+  prepare_output_folder(request.output_dir, "reprocess --out", false);
+  const session::ReprocessResult replayed =
+      session::reprocess_capture(request.capture_path, calibration, options, ConsoleLog(console));
 
   json report = provenance(options, calibration, request.calibration_path);
-  report["capture"] = {
-      {"file", request.capture_path}, {"frames", summary.frames}, {"complete", summary.done.has_value()}};
-  std::vector<std::string> missing = io::describe_missing_frames(*summary.request, stream.received());
-  if (summary.truncation) {
-    console.warn(request.capture_path + " is truncated at byte " + std::to_string(summary.truncation->record_offset) +
-                 " (" + summary.truncation->what + "); reconstructing the " + std::to_string(summary.frames) +
-                 " complete frames before it");
-    report["capture"]["truncated_at_byte"] = summary.truncation->record_offset;
-  }
-  for (const auto& line : missing) console.warn("missing: " + line);
-  report["capture"]["missing"] = missing;
-  for (const auto& error : summary.errors) console.warn("the board reported: " + error.text());
+  report["capture"] = {{"file", request.capture_path},
+                       {"frames", replayed.summary.frames},
+                       {"complete", replayed.summary.done.has_value()}};
+  if (replayed.summary.truncation) report["capture"]["truncated_at_byte"] = replayed.summary.truncation->record_offset;
+  report["capture"]["missing"] = replayed.missing;
+  if (replayed.summary.done) report["camera_link"] = camera_link_json(*replayed.summary.done, console);
+  check_not_empty(replayed.reconstruction, request.capture_path, "");
+  const OutputFiles files = write_scan_outputs(request.output_dir, replayed.reconstruction, report);
+  print_summary(console, replayed.reconstruction, files, seconds_since(start));
+  return report_self_checks(console, replayed.reconstruction);
+}
 
-  console.info("reconstructing " + std::to_string(summary.frames) + " frames");
-  const core::ScanResult result = stream.finish();
-  const OutputFiles files = write_scan_outputs(request.output_dir, result, report);
-  print_summary(console, result, files, seconds_since(start));
+int run_convert(const ConvertCommand& command, const Console& console) {
+  const auto start = Clock::now();
+  const slproto::FrameCodec* codec = nullptr;
+  if (command.compress) {
+    codec = slproto::zstd_codec();
+    if (codec == nullptr) throw std::invalid_argument(std::string("--compress: ") + slproto::zstd_codec_description());
+  }
+  const io::CaptureStorage storage = io::convert_capture(command.input_path, command.output_path, codec);
+  if (storage.truncation)
+    console.warn(command.input_path + " is cut inside the record at offset " +
+                 std::to_string(storage.truncation->record_offset) + " (" + storage.truncation->what +
+                 "); converted the records before it");
+  const double ratio = storage.payload_stored > 0
+                           ? static_cast<double>(storage.payload_decoded) / static_cast<double>(storage.payload_stored)
+                           : 1.0;
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "%s: %zu records (%zu frames), %s, payload %.1f MB stored for %.1f MB (%.2fx), %.1f s",
+                command.output_path.c_str(), storage.records, storage.frames, slproto::frame_codec_name(storage.codec),
+                static_cast<double>(storage.payload_stored) / 1e6, static_cast<double>(storage.payload_decoded) / 1e6,
+                ratio, seconds_since(start));
+  console.info(line);
   return exit_ok;
+}
+
+std::string capture_in(const std::string& output_dir) {
+  std::error_code error;
+  for (const char* name : {"capture.slcap", "capture.slcap.partial"}) {
+    const std::filesystem::path path = std::filesystem::path(output_dir) / name;
+    if (std::filesystem::exists(path, error)) return path.string();
+  }
+  return {};
+}
+
+int refuse_to_overwrite(const std::string& command, const std::string& capture) {
+  std::cerr << "slscan " << command << ": " << capture
+            << " holds the capture of an earlier scan, and a capture cannot be recomputed: scan into a new --out "
+               "folder, or pass --overwrite to replace it\n";
+  return exit_usage;
 }
 
 int run_scan(const ScanCommand& command, const Console& console) {
   const auto start = Clock::now();
+  if (const std::string capture = capture_in(command.output_dir); !capture.empty() && !command.overwrite)
+    return refuse_to_overwrite("scan", capture);
   const slproto::RigCalibration calibration = load_calibration_or_throw(command.calibration_path);
   const core::ReconstructionOptions options = options_from(command.config_path);
-  const std::string token = read_token_file(command.token_file);
+  prepare_output_folder(command.output_dir, "scan --out", true);
+  session::LiveScanRequest request;
+  request.scanner = {command.host, command.port, read_token_file(command.token_file)};
+  request.angles_deg = command.angles_deg;
+  request.projectors = command.projectors;
+  request.exposure_us = command.exposure_us;
+  request.pattern_period_us = command.pattern_period_us;
+  request.settle_ms = command.settle_ms;
+  request.stall_timeout = std::chrono::seconds(command.stall_timeout_s);
+  request.stop = &interrupted;
+  request.capture_path = (std::filesystem::path(command.output_dir) / "capture.slcap").string();
+  request.compress = command.compress;
 
-  auto connection = slproto::connect(command.host, command.port, std::chrono::seconds(3));
-  if (!connection)
-    throw DeviceError("cannot connect to " + command.host + ":" + std::to_string(command.port) + ": " +
-                      connection.error().message);
-  auto reply =
-      slproto::client_handshake(*connection, slproto::make_hello("slscan", "slscan " SLSCAN_VERSION, 0, token));
-  if (!reply) throw DeviceError("the scanner refused the connection: " + reply.error().message);
-  console.info("connected to " + reply->board_name() + " (" + reply->software_version() + ", protocol " +
-               std::to_string(reply->protocol_version()) + ")");
-
-  slproto::pb::ScanRequest request;
-  request.set_scan_id(static_cast<std::uint64_t>(std::chrono::system_clock::now().time_since_epoch().count()));
-  for (double angle : command.angles_deg) request.add_turntable_angles_deg(angle);
-  for (std::uint32_t projector : command.projectors) request.add_projectors(projector);
-  *request.mutable_plan() = slproto::to_proto(calibration.pattern_plan);
-  request.set_exposure_us(command.exposure_us);
-  request.set_pattern_period_us(command.pattern_period_us);
-  request.set_settle_ms(command.settle_ms);
-  request.set_pixel_format(
-      options.decode.bit_depth > 8
-          ? (options.decode.bit_depth > 10 ? slproto::pb::PIXEL_FORMAT_MONO12 : slproto::pb::PIXEL_FORMAT_MONO10)
-          : slproto::pb::PIXEL_FORMAT_MONO8);
-  request.set_timing_events(true);
-  if (auto status = slproto::check_scan_request(request); !status) throw std::invalid_argument(status.error().message);
-
-  std::filesystem::create_directories(command.output_dir);
-  const std::string capture_path = (std::filesystem::path(command.output_dir) / "capture.slcap").string();
-  auto capture = slproto::CaptureWriter::create(capture_path);
-  if (!capture) throw io::IoError(capture.error().message);
-  // The capture begins with the request the host sent, so reprocessing knows the plan.
-  auto request_bytes = slproto::encode(request);
-  if (!request_bytes) throw std::logic_error(request_bytes.error().message);
-  if (auto status = capture->append(*request_bytes); !status) throw io::IoError(status.error().message);
-  connection->record_to(&*capture);
-
-  StreamReconstruction stream(calibration, options);
-  stream.set_plan(slproto::PatternPlan(calibration.pattern_plan));
-  if (auto status = connection->send(request); !status)
-    throw DeviceError("sending the scan request: " + status.error().message);
-  const std::size_t expected =
-      slproto::PatternPlan(calibration.pattern_plan).size() * command.angles_deg.size() * command.projectors.size();
-  bool abort_sent = false;
-  std::optional<slproto::pb::ScanDone> done;
-  std::optional<std::string> failure;
-  while (!done && !failure) {
-    if (interrupted.load() && !abort_sent) {
-      slproto::pb::Abort abort;
-      abort.set_scan_id(request.scan_id());
-      abort.set_reason("interrupted on the host (Ctrl-C)");
-      (void)connection->send(abort);
-      abort_sent = true;
-      console.end_progress();
-      console.warn("interrupted: asking the scanner to stop");
-    }
-    auto message = connection->receive(std::chrono::milliseconds(200));
-    if (!message) {
-      if (message.error().code == slproto::Errc::timeout) continue;
-      if (message.error().code == slproto::Errc::io_error) {
-        // Our capture could not be written (disk full, file size limit): stop the scanner,
-        // which would otherwise go on scanning into nothing.
-        failure = message.error().message;
-        slproto::pb::Abort abort;
-        abort.set_scan_id(request.scan_id());
-        abort.set_reason("the host cannot record: " + message.error().message);
-        (void)connection->send(abort);
-      } else {
-        failure = "connection to the scanner: " + message.error().message;
-      }
-      break;
-    }
-    if (const auto* header = message->get<slproto::pb::FrameHeader>()) {
-      stream.add(*header, message->payload);
-      console.progress("frames", stream.received().size(), expected);
-    } else if (const auto* scan_done = message->get<slproto::pb::ScanDone>()) {
-      done = *scan_done;
-    } else if (const auto* error = message->get<slproto::pb::Error>()) {
-      failure = "the scanner reported: " + error->text();
-    }
-  }
-  console.end_progress();
-  connection->record_to(nullptr);
-  connection->close();
-  const slproto::Status finished = capture->finish();
-  // The cause first: a write error also makes finish() fail, and its message alone would hide why.
-  if (failure) {
-    const std::string kept = finished ? capture_path : capture->partial_path();
-    throw DeviceError(*failure + " (the capture up to the last complete frame is in " + kept + ")");
-  }
-  if (!finished) throw io::IoError(finished.error().message);
-  if (abort_sent) {
-    console.warn("scan aborted; the capture of what arrived is in " + capture_path);
+  const session::LiveScanResult scan = session::run_live_scan(request, calibration, options, ConsoleLog(console));
+  if (scan.aborted) {
+    console.warn("interrupted: kept all " + std::to_string(scan.frames) + " frames received (of " +
+                 std::to_string(scan.frames_expected) + " planned) in " + request.capture_path +
+                 "; slscan reprocess reconstructs them");
     return exit_interrupted;
   }
-
+  const core::ScanResult& result = *scan.reconstruction;
+  check_not_empty(result, request.capture_path, " (the capture is kept)");
   json report = provenance(options, calibration, command.calibration_path);
-  report["capture"] = {{"file", "capture.slcap"}, {"frames", stream.received().size()}, {"complete", true}};
-  report["board"] = {{"name", reply->board_name()}, {"software", reply->software_version()}};
+  report["capture"] = {{"file", "capture.slcap"}, {"frames", scan.frames}, {"complete", true}};
+  report["board"] = {{"name", scan.board.board_name()}, {"software", scan.board.software_version()}};
   json timing = json::array();
-  for (const auto& stat : done->timing())
+  for (const auto& stat : scan.done->timing())
     timing.push_back({{"name", stat.name()},
                       {"count", stat.count()},
                       {"mean_us", stat.mean_us()},
@@ -339,20 +297,18 @@ int run_scan(const ScanCommand& command, const Console& console) {
                       {"max_us", stat.max_us()},
                       {"p99_us", stat.p99_us()}});
   report["board_timing"] = timing;
-  report["board_frames_dropped"] = done->frames_dropped();
-  const auto last_frame = Clock::now();
-  const core::ScanResult result = stream.finish();
-  report["last_frame_to_model_s"] = seconds_since(last_frame);
+  report["board_frames_dropped"] = scan.done->frames_dropped();
+  report["camera_link"] = camera_link_json(*scan.done, console);
+  report["last_frame_to_model_s"] = scan.last_frame_to_model_s;
   if (command.measure_ball_bar) {
     try {
-      const core::BallBarResult bar = core::measure_ball_bar(result.model);
-      report["measurement"]["ball_bar"] = ball_bar_to_json(bar);
-      const double error_um = 1000 * (bar.centre_distance_mm - 150.1164);
-      report["measurement"]["ball_bar"]["distance_error_um"] = error_um;
-      console.info("ball bar: centre distance " + std::to_string(bar.centre_distance_mm) +
-                   " mm (reference 150.1164, error " + std::to_string(error_um) + " um); diameters " +
-                   std::to_string(2 * bar.spheres[0].radius_mm) + " / " + std::to_string(2 * bar.spheres[1].radius_mm) +
-                   " mm");
+      const core::FeatureRule rule;
+      const std::array<double, 2> diameters{30.0008, 30.0015};
+      const core::BallBarFeatures bar = core::ball_bar_features(result.model, diameters, 150.1164, rule);
+      report["measurement"]["ball_bar"] = ball_bar_features_to_json(bar, diameters, 150.1164, rule, {});
+      std::string text = feature_text("ball_bar", report["measurement"]["ball_bar"]);
+      if (!text.empty() && text.back() == '\n') text.pop_back();
+      console.info(text);
     } catch (const std::runtime_error& e) {
       report["measurement"]["ball_bar"] = {{"error", e.what()}};
       console.warn(std::string("ball bar not measured: ") + e.what());
@@ -360,63 +316,54 @@ int run_scan(const ScanCommand& command, const Console& console) {
   }
   const OutputFiles files = write_scan_outputs(command.output_dir, result, report);
   print_summary(console, result, files, seconds_since(start));
-  return exit_ok;
+  return report_self_checks(console, result);
 }
 
 int run_measure(const MeasureCommand& command, const Console& console) {
   const core::PointCloud cloud = io::read_ply(command.model_path);
   json out = {{"model", command.model_path}, {"points", cloud.size()}};
+  std::string kind;
   try {
     switch (command.artefact) {
       case Artefact::ball_bar: {
-        core::BallBarOptions options;
-        options.nominal_radii_mm = {command.nominal_diameter_a_mm / 2, command.nominal_diameter_b_mm / 2};
-        const core::BallBarResult bar = core::measure_ball_bar(cloud, options);
-        out["ball_bar"] = ball_bar_to_json(bar);
-        out["ball_bar"]["reference_distance_mm"] = command.reference_distance_mm;
-        out["ball_bar"]["distance_error_um"] = 1000 * (bar.centre_distance_mm - command.reference_distance_mm);
-        if (!command.json) {
-          std::printf("ball bar: centre distance %.4f mm (reference %.4f mm, error %+.1f um)\n", bar.centre_distance_mm,
-                      command.reference_distance_mm, 1000 * (bar.centre_distance_mm - command.reference_distance_mm));
-          for (std::size_t i = 0; i < 2; ++i) {
-            const auto& s = bar.spheres[i];
-            std::printf("  sphere %zu: diameter %.4f mm, form error %.1f um, RMS %.1f um, %zu points\n", i,
-                        2 * s.radius_mm, 1000 * s.form_error_mm, 1000 * s.rms_mm, s.point_count);
-          }
-        }
+        kind = "ball_bar";
+        const std::array<double, 2> diameters{command.nominal_diameter_a_mm, command.nominal_diameter_b_mm};
+        const core::BallBarFeatures bar =
+            core::ball_bar_features(cloud, diameters, command.reference_distance_mm, command.rule);
+        out[kind] = ball_bar_features_to_json(bar, diameters, command.reference_distance_mm, command.rule, command.mpe);
         break;
       }
       case Artefact::sphere: {
-        const core::SphereFit s = core::fit_sphere(cloud.points);
-        out["sphere"] = {{"centre_mm", {s.centre.x(), s.centre.y(), s.centre.z()}},
-                         {"diameter_mm", 2 * s.radius_mm},
-                         {"form_error_mm", s.form_error_mm},
-                         {"rms_mm", s.rms_mm}};
-        if (!command.json)
-          std::printf("sphere: diameter %.4f mm, centre (%.4f, %.4f, %.4f), form error %.1f um, RMS %.1f um\n",
-                      2 * s.radius_mm, s.centre.x(), s.centre.y(), s.centre.z(), 1000 * s.form_error_mm,
-                      1000 * s.rms_mm);
+        kind = "sphere";
+        if (!(command.sphere_diameter_mm > 0))
+          throw std::invalid_argument("measure --sphere needs --diameter-mm (the sphere's calibrated diameter)");
+        const core::FoundSphere found = core::find_sphere(cloud, command.sphere_diameter_mm / 2);
+        const core::SphereFeature s =
+            core::sphere_feature(cloud.points, found.fit, command.sphere_diameter_mm, command.rule);
+        out[kind] = sphere_feature_to_json(s, command.sphere_diameter_mm, command.mpe);
+        out[kind]["procedure"] = "VDI/VDE 2634-2 from the scan alone (no ground truth)";
+        out[kind]["region_rule"] = region_rule_json(command.rule);
         break;
       }
       case Artefact::plane: {
-        const core::PlaneFit p = core::fit_plane(cloud.points);
-        out["plane"] = {{"normal", {p.normal.x(), p.normal.y(), p.normal.z()}},
-                        {"flatness_mm", p.flatness_mm},
-                        {"rms_mm", p.rms_mm}};
-        if (!command.json)
-          std::printf("plane: flatness %.1f um, RMS %.1f um over %zu points\n", 1000 * p.flatness_mm, 1000 * p.rms_mm,
-                      p.point_count);
+        kind = "plane";
+        out[kind] = plane_feature_to_json(core::plane_feature(cloud, command.rule), command.rule, command.mpe);
         break;
       }
     }
   } catch (const io::IoError&) {
     throw;
+  } catch (const std::invalid_argument&) {
+    throw;
   } catch (const std::exception& e) {  // the fit itself failed: the artefact is not in the cloud
     console.warn(command.model_path + ": " + e.what());
     return exit_measurement;
   }
-  if (command.json) std::printf("%s\n", out.dump(2).c_str());
-  return exit_ok;
+  if (command.json)
+    std::printf("%s\n", out.dump(2).c_str());
+  else
+    std::printf("%s", feature_text(kind, out[kind]).c_str());
+  return all_within_mpe(out) ? exit_ok : exit_out_of_tolerance;
 }
 
 }  // namespace slscan::app

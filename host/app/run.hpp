@@ -8,26 +8,29 @@
 #include <string>
 #include <vector>
 
+#include "feature_report.hpp"
+#include "slscan/core/feature_metrology.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
+#include "slscan/session/session_log.hpp"
 
 namespace slscan::app {
 
 // Documented exit codes (docs/cli.md).
 enum ExitCode : int {
   exit_ok = 0,
-  exit_usage = 1,         // bad command line (CLI11 prints why)
-  exit_bad_input = 2,     // unreadable, corrupt or inconsistent input file or configuration
-  exit_device = 3,        // the scanner: connection, protocol, board-side errors
-  exit_measurement = 4,   // the artefact could not be found or fitted
-  exit_internal = 5,      // a bug
-  exit_interrupted = 130  // Ctrl-C
+  exit_usage = 1,             // bad command line (CLI11 prints why)
+  exit_bad_input = 2,         // unreadable, corrupt or inconsistent input file or configuration
+  exit_device = 3,            // the scanner: connection, protocol, board-side errors
+  exit_measurement = 4,       // the artefact could not be found or fitted
+  exit_internal = 5,          // a bug
+  exit_inconsistent = 6,      // the data contradicts its description (the decoder's self-checks: docs/real-data.md)
+  exit_out_of_tolerance = 7,  // measured, but a figure is outside its stated MPE (FAIL)
+  exit_unmatched = 8,         // compare: fewer than --min-matched of the measured points matched the reference
+  exit_interrupted = 130      // Ctrl-C
 };
 
 // Thrown for problems with the scanner itself (connection, protocol, board errors).
-class DeviceError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
+using session::DeviceError;
 
 struct Console {
   bool quiet = false;
@@ -37,6 +40,21 @@ struct Console {
   // A progress line for long steps (redrawn in place on a terminal).
   void progress(const std::string& stage, std::size_t done, std::size_t total) const;
   void end_progress() const;
+};
+
+// A console as what a session (host/session) tells its user.
+class ConsoleLog final : public session::SessionLog {
+ public:
+  explicit ConsoleLog(const Console& console) : console_(console) {}
+  void info(const std::string& text) const override { console_.info(text); }
+  void warn(const std::string& text) const override { console_.warn(text); }
+  void progress(const std::string& stage, std::size_t done, std::size_t total) const override {
+    console_.progress(stage, done, total);
+  }
+  void end_progress() const override { console_.end_progress(); }
+
+ private:
+  const Console& console_;
 };
 
 // Set by the SIGINT handler; long loops poll it.
@@ -62,17 +80,36 @@ struct ScanCommand {
   std::uint32_t exposure_us = 8333;
   std::uint32_t pattern_period_us = 10000;
   std::uint32_t settle_ms = 200;
-  std::string token_file;         // shared secret for boards that listen on a network
-  bool measure_ball_bar = false;  // fit the ball bar in the model and put it in the report
+  std::uint32_t stall_timeout_s = 60;  // no frame for this long: the scan fails
+  std::string token_file;              // shared secret for boards that listen on a network
+  bool measure_ball_bar = false;       // fit the ball bar in the model and put it in the report
+  bool compress = false;               // record the capture with zstd-compressed frames
+  bool overwrite = false;              // replace a capture already in output_dir (refused otherwise)
 };
 int run_scan(const ScanCommand& command, const Console& console);
+
+// The capture already in `output_dir` (capture.slcap, or the .partial a failed scan kept), or
+// "" when there is none. `scan` and `demo` refuse such a folder unless --overwrite.
+std::string capture_in(const std::string& output_dir);
+// The refusal: names the file and the way out; exit_usage.
+int refuse_to_overwrite(const std::string& command, const std::string& capture);
+
+struct ConvertCommand {
+  std::string input_path;
+  std::string output_path;
+  bool compress = true;  // --compress (default) or --no-compress
+};
+int run_convert(const ConvertCommand& command, const Console& console);
 
 enum class Artefact { ball_bar, sphere, plane };
 struct MeasureCommand {
   std::string model_path;
   Artefact artefact = Artefact::ball_bar;
-  double nominal_diameter_a_mm = 30.0008, nominal_diameter_b_mm = 30.0015;
+  double nominal_diameter_a_mm = 30.0008, nominal_diameter_b_mm = 30.0015;  // the ball bar's, calibrated
   double reference_distance_mm = 150.1164;
+  double sphere_diameter_mm = 0;  // --sphere: the calibrated diameter (required)
+  core::FeatureRule rule;         // the region rule (docs/inspection.md)
+  MpeLimits mpe;                  // --mpe-*: PASS / FAIL; unset = not judged
   bool json = false;
 };
 int run_measure(const MeasureCommand& command, const Console& console);
@@ -85,6 +122,7 @@ struct DemoCommand {
   std::string config_path;
   std::string slscand_path;  // default: next to slscan in the build tree
   std::string board_path;    // default: boards/sim.toml of the source tree
+  bool overwrite = false;    // replace the capture of an earlier demo in output_dir
 };
 int run_demo(const DemoCommand& command, const Console& console);
 

@@ -13,6 +13,7 @@
 #include <utility>
 
 #include "slproto/crc32c.hpp"
+#include "slproto/file_util.hpp"
 
 namespace slproto {
 namespace {
@@ -20,10 +21,6 @@ namespace {
 constexpr std::array<std::byte, 8> capture_magic{std::byte{'S'}, std::byte{'L'},  std::byte{'C'},  std::byte{'A'},
                                                  std::byte{'P'}, std::byte{'\r'}, std::byte{'\n'}, std::byte{0x1a}};
 constexpr std::size_t max_capture_header = 4096;
-
-std::string errno_text(int error) {
-  return std::string(std::strerror(error)) + " (errno " + std::to_string(error) + ")";
-}
 
 std::uint64_t get_le(const std::byte* p, int bytes) {
   std::uint64_t v = 0;
@@ -35,6 +32,8 @@ void put_le(std::byte* p, std::uint64_t v, int bytes) {
 }
 
 struct CaptureHeaderInfo {
+  std::uint16_t format_version = 0;
+  FrameCodecId codec = FrameCodecId::none;
   std::uint16_t protocol_version = 0;
   std::uint32_t header_length = 0;
   std::uint64_t created_unix_ns = 0;
@@ -50,11 +49,22 @@ Result<CaptureHeaderInfo> parse_capture_header(std::span<const std::byte> bytes,
   if (get_le(p + 28, 4) != crc32c(p, 28))
     return make_error(Errc::bad_checksum, name + ": capture file header CRC mismatch (offset 28)");
   const auto format = static_cast<std::uint16_t>(get_le(p + 8, 2));
-  if (format != capture_format_version)
+  if (format < capture_format_version_raw || format > capture_format_version)
     return make_error(Errc::wrong_version, name + ": capture format version " + std::to_string(format) +
                                                " not supported (this build reads " +
+                                               std::to_string(capture_format_version_raw) + ".." +
                                                std::to_string(capture_format_version) + ") at offset 8");
   CaptureHeaderInfo info;
+  info.format_version = format;
+  if (format >= 2) {
+    const auto codec = std::to_integer<std::uint8_t>(p[24]);
+    if (codec > static_cast<std::uint8_t>(FrameCodecId::zstd))
+      return make_error(Errc::unsupported, name + ": unknown frame codec " + std::to_string(codec) +
+                                               " (this build knows 0 none, 1 zstd) at offset 24");
+    if (get_le(p + 25, 3) != 0)
+      return make_error(Errc::malformed, name + ": capture header reserved bytes 25..27 are not 0");
+    info.codec = static_cast<FrameCodecId>(codec);
+  }
   info.protocol_version = static_cast<std::uint16_t>(get_le(p + 10, 2));
   if (info.protocol_version < min_framing_version || info.protocol_version > framing_version)
     return make_error(Errc::wrong_version, name + ": records use framing version " +
@@ -69,16 +79,75 @@ Result<CaptureHeaderInfo> parse_capture_header(std::span<const std::byte> bytes,
   return info;
 }
 
+Error at_record(const Message& stored, Errc code, const std::string& what) {
+  return Error{code, "compressed frame record at offset " + std::to_string(stored.stream_offset) + ": " + what};
+}
+
 }  // namespace
 
-std::array<std::byte, capture_header_size> capture_file_header(std::uint64_t unix_ns) {
+const char* frame_codec_name(FrameCodecId id) noexcept {
+  switch (id) {
+    case FrameCodecId::none:
+      return "none";
+    case FrameCodecId::zstd:
+      return "zstd";
+  }
+  return "unknown";
+}
+
+Status decode_stored_record(const Message& stored, const FrameCodec* codec, std::uint32_t max_payload,
+                            std::vector<std::byte>& buffer, Message& out) {
+  if ((stored.header.flags & record_flag_compressed) == 0) {
+    out = stored;
+    return Ok{};
+  }
+  if (codec == nullptr) return at_record(stored, Errc::unsupported, "no codec to decode it");
+  const std::span<const std::byte> payload = stored.payload;
+  if (payload.size() < compressed_payload_prefix)
+    return at_record(stored, Errc::malformed,
+                     "stored payload of " + std::to_string(payload.size()) + " bytes is shorter than its " +
+                         std::to_string(compressed_payload_prefix) + "-byte prefix");
+  const auto decoded_length = static_cast<std::uint32_t>(get_le(payload.data(), 4));
+  const auto decoded_crc = static_cast<std::uint32_t>(get_le(payload.data() + 4, 4));
+  const std::uint32_t limit = std::min(max_payload, max_payload_length);
+  if (decoded_length > limit)
+    return at_record(stored, Errc::oversized,
+                     "declared decoded size " + std::to_string(decoded_length) + " exceeds the frame limit " +
+                         std::to_string(limit) + " (not decoded)");
+  if (buffer.size() < decoded_length) buffer.resize(decoded_length);
+  const std::span<std::byte> decoded{buffer.data(), decoded_length};
+  if (Status status = codec->decompress(payload.subspan(compressed_payload_prefix), decoded); !status)
+    return at_record(stored, status.error().code,
+                     std::string(frame_codec_name(codec->id())) + " payload: " + status.error().message);
+  if (crc32c(decoded) != decoded_crc) return at_record(stored, Errc::bad_checksum, "decoded payload CRC mismatch");
+  WireHeader header = stored.header;
+  header.flags = 0;
+  header.payload_length = decoded_length;
+  header.payload_crc = decoded_crc;
+  header.control_crc = control_crc(header, stored.control);
+  out.header = header;
+  out.header_bytes = header.serialize();
+  out.body = stored.body;
+  out.control = stored.control;
+  out.payload = decoded;
+  out.stream_offset = stored.stream_offset;
+  if (const auto* frame = out.get<pb::FrameHeader>()) {
+    if (Status status = check_frame_geometry(*frame, decoded.size()); !status)
+      return at_record(stored, status.error().code, "decoded: " + status.error().message);
+    if (frame->payload_crc32c() != decoded_crc)
+      return at_record(stored, Errc::bad_checksum, "frame header: payload_crc32c differs from the decoded payload's");
+  }
+  return Ok{};
+}
+
+std::array<std::byte, capture_header_size> capture_file_header(std::uint64_t unix_ns, FrameCodecId codec) {
   std::array<std::byte, capture_header_size> out{};
   std::copy(capture_magic.begin(), capture_magic.end(), out.begin());
-  put_le(&out[8], capture_format_version, 2);
+  put_le(&out[8], codec == FrameCodecId::none ? capture_format_version_raw : capture_format_version, 2);
   put_le(&out[10], framing_version, 2);
   put_le(&out[12], capture_header_size, 4);
   put_le(&out[16], unix_ns, 8);
-  put_le(&out[24], 0, 4);
+  put_le(&out[24], static_cast<std::uint8_t>(codec), 4);
   put_le(&out[28], crc32c(out.data(), 28), 4);
   return out;
 }
@@ -92,7 +161,11 @@ CaptureWriter::CaptureWriter(CaptureWriter&& other) noexcept
     : fd_(std::exchange(other.fd_, -1)),
       path_(std::move(other.path_)),
       bytes_written_(other.bytes_written_),
-      failed_(other.failed_) {}
+      failed_(other.failed_),
+      codec_(other.codec_),
+      scratch_(std::move(other.scratch_)),
+      payload_in_(other.payload_in_),
+      payload_stored_(other.payload_stored_) {}
 CaptureWriter& CaptureWriter::operator=(CaptureWriter&& other) noexcept {
   if (this != &other) {
     if (fd_ >= 0) (void)finish();
@@ -100,19 +173,27 @@ CaptureWriter& CaptureWriter::operator=(CaptureWriter&& other) noexcept {
     path_ = std::move(other.path_);
     bytes_written_ = other.bytes_written_;
     failed_ = other.failed_;
+    codec_ = other.codec_;
+    scratch_ = std::move(other.scratch_);
+    payload_in_ = other.payload_in_;
+    payload_stored_ = other.payload_stored_;
   }
   return *this;
 }
 
-Result<CaptureWriter> CaptureWriter::create(const std::string& path) {
+Result<CaptureWriter> CaptureWriter::create(const std::string& path, CaptureWriterOptions options) {
   CaptureWriter writer;
   writer.path_ = path;
+  writer.codec_ = options.codec;
   const std::string partial = writer.partial_path();
   writer.fd_ = ::open(partial.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (writer.fd_ < 0) return make_error(Errc::io_error, "cannot create capture " + partial + ": " + errno_text(errno));
   const auto now = std::chrono::system_clock::now().time_since_epoch();
-  const auto header = capture_file_header(
-      static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(now).count()));
+  const std::uint64_t created =
+      options.created_unix_ns != 0
+          ? options.created_unix_ns
+          : static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(now).count());
+  const auto header = capture_file_header(created, writer.codec());
   if (Status status = writer.append(header); !status) {
     ::close(std::exchange(writer.fd_, -1));
     ::unlink(partial.c_str());
@@ -178,6 +259,35 @@ Status CaptureWriter::append(std::span<const std::byte> stream_bytes) {
 }
 
 Status CaptureWriter::append(const Message& message) {
+  payload_in_ += message.payload.size();
+  if (codec_ != nullptr && message.type() == MessageType::frame && !message.payload.empty() &&
+      message.header.flags == 0 && fd_ >= 0 && !failed_) {
+    if (Status status = codec_->compress(message.payload, scratch_); !status)
+      return make_error(status.error().code, "compressing the frame record at stream offset " +
+                                                 std::to_string(message.stream_offset) + " for " + partial_path() +
+                                                 ": " + status.error().message);
+    const std::uint64_t stored = compressed_payload_prefix + scratch_.size();
+    if (stored < message.payload.size()) {  // else stored raw: incompressible (noise)
+      std::array<std::byte, compressed_payload_prefix> prefix{};
+      put_le(prefix.data(), message.payload.size(), 4);
+      put_le(prefix.data() + 4, message.header.payload_crc, 4);
+      WireHeader header = message.header;
+      header.flags = record_flag_compressed;
+      header.payload_length = static_cast<std::uint32_t>(stored);
+      header.payload_crc = crc32c(scratch_, crc32c(prefix.data(), prefix.size()));
+      header.control_crc = control_crc(header, message.control);
+      const auto header_bytes = header.serialize();
+      iovec iov[4] = {
+          {const_cast<std::byte*>(header_bytes.data()), header_bytes.size()},
+          {const_cast<std::byte*>(message.control.data()), message.control.size()},
+          {prefix.data(), prefix.size()},
+          {scratch_.data(), scratch_.size()},
+      };
+      payload_stored_ += stored;
+      return append_iov(fd_, failed_, bytes_written_, partial_path(), iov, 4);
+    }
+  }
+  payload_stored_ += message.payload.size();
   iovec iov[3] = {
       {const_cast<std::byte*>(message.header_bytes.data()), message.header_bytes.size()},
       {const_cast<std::byte*>(message.control.data()), message.control.size()},
@@ -224,14 +334,35 @@ CaptureReader& CaptureReader::operator=(CaptureReader&& other) noexcept {
     truncation_ = std::move(other.truncation_);
     at_end_ = other.at_end_;
     error_ = std::move(other.error_);
+    format_version_ = other.format_version_;
+    codec_id_ = other.codec_id_;
+    codec_ = other.codec_;
+    max_payload_ = other.max_payload_;
+    decoded_ = std::move(other.decoded_);
+    decoded_message_ = std::move(other.decoded_message_);
+    payload_stored_ = other.payload_stored_;
+    payload_decoded_ = other.payload_decoded_;
   }
   return *this;
 }
 
-Result<CaptureReader> CaptureReader::open(const std::string& path, DecoderLimits limits) {
+namespace {
+
+Status check_codec(const CaptureHeaderInfo& info, const FrameCodec* codec, const std::string& name) {
+  if (info.codec == FrameCodecId::none) return Ok{};
+  if (codec == nullptr || codec->id() != info.codec)
+    return make_error(Errc::unsupported, name + ": frames are compressed with " + frame_codec_name(info.codec) +
+                                             " (header offset 24) and this program has no " +
+                                             frame_codec_name(info.codec) + " codec");
+  return Ok{};
+}
+
+}  // namespace
+
+Result<CaptureReader> CaptureReader::open(const std::string& path, DecoderLimits limits, const FrameCodec* codec) {
   CaptureReader reader;
   reader.path_ = path;
-  reader.decoder_ = StreamDecoder(limits);
+  reader.max_payload_ = limits.max_payload;
   reader.fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (reader.fd_ < 0) return make_error(Errc::io_error, "cannot open capture " + path + ": " + errno_text(errno));
   struct stat info {};
@@ -242,6 +373,12 @@ Result<CaptureReader> CaptureReader::open(const std::string& path, DecoderLimits
   if (n < 0) return make_error(Errc::io_error, "reading " + path + ": " + errno_text(errno));
   Result<CaptureHeaderInfo> parsed = parse_capture_header({header.data(), static_cast<std::size_t>(n)}, path);
   if (!parsed) return std::move(parsed).error();
+  if (Status status = check_codec(*parsed, codec, path); !status) return status.error();
+  reader.format_version_ = parsed->format_version;
+  reader.codec_id_ = parsed->codec;
+  reader.codec_ = codec;
+  limits.allowed_flags = parsed->codec == FrameCodecId::none ? 0 : record_flag_compressed;
+  reader.decoder_ = StreamDecoder(limits);
   if (parsed->header_length > reader.file_size_)
     return make_error(Errc::truncated, path + ": capture file header of " + std::to_string(parsed->header_length) +
                                            " bytes but the file has " + std::to_string(reader.file_size_));
@@ -284,16 +421,31 @@ Result<const Message*> CaptureReader::next() {
     }
     if (decoder_.message_ready()) {
       ++records_read_;
-      return &decoder_.message();
+      const Message& stored = decoder_.message();
+      payload_stored_ += stored.payload.size();
+      if ((stored.header.flags & record_flag_compressed) == 0) {
+        payload_decoded_ += stored.payload.size();
+        return &stored;
+      }
+      if (Status status = decode_stored_record(stored, codec_, max_payload_, decoded_, decoded_message_); !status) {
+        error_ = make_error(status.error().code, path_ + ": " + status.error().message);
+        return *error_;
+      }
+      payload_decoded_ += decoded_message_.payload.size();
+      return &decoded_message_;
     }
   }
 }
 
 Result<std::optional<CaptureTruncation>> read_capture_bytes(std::span<const std::byte> file_bytes,
                                                             const std::function<Status(const Message&)>& on_record,
-                                                            DecoderLimits limits) {
+                                                            DecoderLimits limits, const FrameCodec* codec) {
   Result<CaptureHeaderInfo> parsed = parse_capture_header(file_bytes, "capture");
   if (!parsed) return std::move(parsed).error();
+  if (Status status = check_codec(*parsed, codec, "capture"); !status) return status.error();
+  limits.allowed_flags = parsed->codec == FrameCodecId::none ? 0 : record_flag_compressed;
+  std::vector<std::byte> buffer;
+  Message decoded;
   if (parsed->header_length > file_bytes.size())
     return make_error(Errc::truncated, "capture: file header of " + std::to_string(parsed->header_length) +
                                            " bytes but the data has " + std::to_string(file_bytes.size()));
@@ -305,7 +457,14 @@ Result<std::optional<CaptureTruncation>> read_capture_bytes(std::span<const std:
     if (!consumed) return make_error(consumed.error().code, "capture: " + consumed.error().message);
     rest = rest.subspan(*consumed);
     if (decoder.message_ready()) {
-      if (Status status = on_record(decoder.message()); !status) return status.error();
+      const Message& stored = decoder.message();
+      if ((stored.header.flags & record_flag_compressed) == 0) {
+        if (Status status = on_record(stored); !status) return status.error();
+      } else {
+        if (Status status = decode_stored_record(stored, codec, limits.max_payload, buffer, decoded); !status)
+          return make_error(status.error().code, "capture: " + status.error().message);
+        if (Status status = on_record(decoded); !status) return status.error();
+      }
       decoder.next();
     }
   }

@@ -92,7 +92,7 @@ std::array<std::byte, wire_header_size> WireHeader::serialize() const noexcept {
 }
 
 Result<WireHeader> WireHeader::parse(std::span<const std::byte, wire_header_size> bytes, std::uint64_t stream_offset,
-                                     std::uint32_t payload_limit) {
+                                     std::uint32_t payload_limit, std::uint8_t allowed_flags) {
   const std::byte* p = bytes.data();
   if (!std::equal(wire_magic.begin(), wire_magic.end(), p)) {
     char shown[16];
@@ -118,9 +118,13 @@ Result<WireHeader> WireHeader::parse(std::span<const std::byte, wire_header_size
                       "record header: unknown message type " + std::to_string(type) + at(stream_offset + 6));
   header.type = static_cast<MessageType>(type);
   header.flags = std::to_integer<std::uint8_t>(p[7]);
-  if (header.flags != 0)
-    return make_error(Errc::malformed,
-                      "record header: flags " + std::to_string(header.flags) + " must be 0" + at(stream_offset + 7));
+  if ((header.flags & ~allowed_flags) != 0 ||
+      (header.flags != 0 && static_cast<MessageType>(type) != MessageType::frame))
+    return make_error(Errc::malformed, "record header: flags " + std::to_string(header.flags) + " must be " +
+                                           (allowed_flags == 0 ? std::string("0")
+                                                               : "0, or " + std::to_string(allowed_flags) +
+                                                                     " on a frame record of a compressed capture") +
+                                           at(stream_offset + 7));
   header.control_length = get_u32(p + 8);
   header.payload_length = get_u32(p + 12);
   header.control_crc = get_u32(p + 16);
@@ -290,7 +294,8 @@ Status StreamDecoder::commit(std::size_t n) {
 Status StreamDecoder::complete_part() {
   switch (phase_) {
     case Phase::header: {
-      Result<WireHeader> header = WireHeader::parse(header_bytes_, record_offset_, limits_.max_payload);
+      Result<WireHeader> header =
+          WireHeader::parse(header_bytes_, record_offset_, limits_.max_payload, limits_.allowed_flags);
       if (!header) return std::move(header).error();
       if (header->control_length > limits_.max_control)
         return make_error(Errc::oversized, "record header: control length " + std::to_string(header->control_length) +
@@ -319,7 +324,9 @@ Status StreamDecoder::complete_part() {
       Result<Body> body = parse_body(header_.type, control);
       if (!body) return make_error(Errc::malformed, body.error().message + at(record_offset_ + wire_header_size));
       const std::span<const std::byte> payload{payload_.data(), header_.payload_length};
-      if (const auto* frame = std::get_if<pb::FrameHeader>(&*body)) {
+      // A compressed payload (capture files only) is checked once decoded (decode_stored_record).
+      const bool compressed = (header_.flags & record_flag_compressed) != 0;
+      if (const auto* frame = std::get_if<pb::FrameHeader>(&*body); frame != nullptr && !compressed) {
         if (Status status = check_frame_geometry(*frame, payload.size()); !status)
           return make_error(status.error().code, status.error().message + at(record_offset_));
         if (frame->payload_crc32c() != header_.payload_crc)

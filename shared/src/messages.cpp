@@ -1,6 +1,7 @@
 #include "slproto/messages.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <set>
 
 namespace slproto {
@@ -107,6 +108,8 @@ pb::PatternPlanConfig to_proto(const PatternPlanConfig& config) {
   out.set_inverse_gray(config.inverse_gray);
   out.set_gray_low_bits(config.gray_low_bits == GrayLowBits::slstudio_parity ? pb::GRAY_LOW_BITS_SLSTUDIO_PARITY
                                                                              : pb::GRAY_LOW_BITS_CENTRE);
+  out.set_phase_offset_rad(config.phase_offset_rad);
+  out.set_phase_offset_steps(static_cast<std::uint32_t>(config.phase_offset_steps));
   return out;
 }
 
@@ -121,7 +124,7 @@ Result<PatternPlanConfig> from_proto(const pb::PatternPlanConfig& config) {
   for (auto [name, value] :
        {std::pair{"projector_width", config.projector_width()},
         std::pair{"projector_height", config.projector_height()}, std::pair{"period_px", config.period_px()},
-        std::pair{"phase_steps", config.phase_steps()}})
+        std::pair{"phase_steps", config.phase_steps()}, std::pair{"phase_offset_steps", config.phase_offset_steps()}})
     if (Status status = field(name, value); !status) return status.error();
   if (config.axis() != pb::CODING_AXIS_COLUMNS && config.axis() != pb::CODING_AXIS_ROWS)
     return make_error(Errc::invalid_argument, "pattern plan: axis " + std::to_string(config.axis()) + " is unknown");
@@ -139,6 +142,8 @@ Result<PatternPlanConfig> from_proto(const pb::PatternPlanConfig& config) {
   out.inverse_gray = config.inverse_gray();
   out.gray_low_bits =
       config.gray_low_bits() == pb::GRAY_LOW_BITS_SLSTUDIO_PARITY ? GrayLowBits::slstudio_parity : GrayLowBits::centre;
+  out.phase_offset_rad = config.phase_offset_rad();
+  out.phase_offset_steps = static_cast<int>(config.phase_offset_steps());
   if (Status status = out.check(); !status) return status.error();
   return out;
 }
@@ -146,11 +151,21 @@ Result<PatternPlanConfig> from_proto(const pb::PatternPlanConfig& config) {
 Status check_scan_request(const pb::ScanRequest& request, std::uint32_t projector_count) {
   auto bad = [](std::string what) { return make_error(Errc::invalid_argument, "scan request: " + std::move(what)); };
   if (request.turntable_angles_deg_size() == 0) return bad("no turntable angles");
+  // Every view costs a turntable move and a frame set (and the host a slot per projector): 3600
+  // is a view every 0.1 degree, more than any scan needs; a bigger count is a corrupt or hostile
+  // request (docs/security.md).
+  constexpr int kMaxViews = 3600;
+  if (request.turntable_angles_deg_size() > kMaxViews)
+    return bad(std::to_string(request.turntable_angles_deg_size()) + " turntable angles (at most " +
+               std::to_string(kMaxViews) + ")");
   for (int i = 0; i < request.turntable_angles_deg_size(); ++i) {
     const double angle = request.turntable_angles_deg(i);
-    if (!std::isfinite(angle) || std::abs(angle) > 360.0)
-      return bad("turntable_angles_deg[" + std::to_string(i) + "] = " + std::to_string(angle) +
+    if (!std::isfinite(angle) || std::abs(angle) > 360.0) {
+      char shown[32];
+      std::snprintf(shown, sizeof shown, "%.6g", angle);
+      return bad("turntable_angles_deg[" + std::to_string(i) + "] = " + shown +
                  " is not a finite angle in [-360, 360]");
+    }
   }
   if (request.projectors_size() == 0) return bad("no projectors");
   std::set<std::uint32_t> seen;

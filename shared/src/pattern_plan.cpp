@@ -61,6 +61,13 @@ Status PatternPlanConfig::check() const {
     return fail("the complementary bit needs an even period_px, got " + std::to_string(period_px));
   if (phase_steps != 0 && (phase_steps < 3 || phase_steps > 64))
     return fail("phase_steps " + std::to_string(phase_steps) + " must be 0 (no phase shift) or in [3, 64]");
+  if (!std::isfinite(phase_offset_rad) || std::abs(phase_offset_rad) > 2 * std::numbers::pi)
+    return fail("phase_offset_rad " + std::to_string(phase_offset_rad) + " is not a finite angle within [-2 pi, 2 pi]");
+  if (phase_steps == 0 && (phase_offset_rad != 0 || phase_offset_steps != 0))
+    return fail("phase_offset_rad / phase_offset_steps need phase steps");
+  if (phase_offset_steps < 0 || (phase_steps > 0 && phase_offset_steps >= phase_steps))
+    return fail("phase_offset_steps " + std::to_string(phase_offset_steps) + " outside [0, phase_steps " +
+                std::to_string(phase_steps) + ")");
   if (gray_low_bits != GrayLowBits::centre && gray_low_bits != GrayLowBits::slstudio_parity)
     return fail("gray_low_bits is neither centre nor slstudio_parity");
   if (gray_low_bits == GrayLowBits::slstudio_parity) {
@@ -75,6 +82,11 @@ Status PatternPlanConfig::check() const {
                   std::to_string(step));
   }
   return Ok{};
+}
+
+double PatternPlanConfig::phase_shift_rad(int n) const {
+  if (phase_steps <= 0) return 0.0;
+  return phase_offset_rad + 2.0 * std::numbers::pi * (n - phase_offset_steps) / phase_steps;
 }
 
 Result<PatternPlan> PatternPlan::make(const PatternPlanConfig& config) {
@@ -135,7 +147,7 @@ float PatternPlan::value(std::size_t i, double coord) const {
     }
     case PatternKind::phase_step: {
       const double two_pi = 2.0 * std::numbers::pi;
-      const double phase = two_pi * coord / period + two_pi * pattern.index / config_.phase_steps;
+      const double phase = two_pi * coord / period + config_.phase_shift_rad(pattern.index);
       return static_cast<float>(0.5 + 0.5 * std::cos(phase));
     }
   }

@@ -20,16 +20,13 @@
 
 #include "slproto/capture.hpp"
 #include "slproto/crc32c.hpp"
+#include "slproto/file_util.hpp"
 
 namespace slproto {
 namespace {
 
 using Clock = std::chrono::steady_clock;
 using std::chrono::milliseconds;
-
-std::string errno_text(int error) {
-  return std::string(std::strerror(error)) + " (errno " + std::to_string(error) + ")";
-}
 
 std::uint64_t monotonic_ns() {
   return static_cast<std::uint64_t>(
@@ -455,6 +452,11 @@ void Connection::record_to(CaptureWriter* capture) {
   if (!impl_) return;
   std::lock_guard lock(impl_->receive_mutex);
   impl_->capture = capture;
+}
+
+void Connection::interrupt() noexcept {
+  // The descriptor is closed only by ~Impl, so it cannot have been reused meanwhile.
+  if (impl_ && impl_->open.load()) ::shutdown(impl_->fd, SHUT_RDWR);
 }
 
 void Connection::close() {

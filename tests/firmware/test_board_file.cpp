@@ -54,7 +54,7 @@ std::string error_of(const std::string& text) {
 }  // namespace
 
 TEST(BoardFile, ShippedBoardsLoad) {
-  for (const char* name : {"sim", "rpi", "beaglebone-black"}) {
+  for (const char* name : {"sim", "rpi", "beaglebone-black", "rpi-gige", "sim-gige"}) {
     auto board = load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/" + name + ".toml");
     ASSERT_TRUE(board.ok()) << name << ": " << board.error().message;
     EXPECT_EQ(board->name, name);
@@ -81,6 +81,46 @@ TEST(BoardFile, GpioTriggerBoardHasItsLine) {
   EXPECT_EQ(board->trigger_source, CameraTriggerSource::gpio);
   ASSERT_TRUE(board->camera_trigger_line.has_value());
   EXPECT_EQ(*board->camera_trigger_line, 28u);
+}
+
+TEST(BoardFile, GigeBoardNamesTheCameraInputAndWindow) {
+  auto board = load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/rpi-gige.toml");
+  ASSERT_TRUE(board.ok()) << board.error().message;
+  EXPECT_EQ(board->camera_backend, "aravis");
+  EXPECT_EQ(board->trigger_source, CameraTriggerSource::gpio);
+  EXPECT_EQ(*board->camera_trigger_line, 16u);
+  EXPECT_EQ(board->camera_trigger_input, "Line0");
+  EXPECT_EQ(board->camera_trigger_activation, "RisingEdge");
+  EXPECT_EQ(board->camera_format.width, 2464);
+  EXPECT_EQ(board->camera_format.height, 2056);
+  EXPECT_EQ(board->camera_packet_size, 8192);
+  auto bench = load_board(std::string(SLSCAN_SOURCE_DIR) + "/boards/sim-gige.toml");
+  ASSERT_TRUE(bench.ok()) << bench.error().message;
+  EXPECT_TRUE(bench->is_sim());
+  EXPECT_EQ(bench->trigger_source, CameraTriggerSource::software);
+}
+
+TEST(BoardFile, GenicamFieldsAndSoftwareTriggerAreCheckedAgainstTheBackend) {
+  // The software trigger exists only in the Aravis backend.
+  EXPECT_NE(
+      error_of(sim_with("trigger = \"projector\"", "trigger = \"software\"")).find("needs camera.backend = \"aravis\""),
+      std::string::npos);
+  // GenICam-only fields on another backend are a mistake, not a silent no-op.
+  EXPECT_NE(error_of(sim_with("readout_us = 1500", "readout_us = 1500\ntrigger_input = \"Line1\""))
+                .find("'camera.trigger_input' applies to camera.backend = \"aravis\" only"),
+            std::string::npos);
+  // A real camera among the virtual devices only when triggered in software.
+  const std::string bench = std::string(SLSCAN_SOURCE_DIR) + "/boards/sim-gige.toml";
+  const std::string projector_triggered = error_of(board_with(bench, "trigger = ", "trigger = \"projector\""));
+  EXPECT_NE(projector_triggered.find("go together"), std::string::npos) << projector_triggered;
+  auto edit = [&](const std::string& line_start, const std::string& to) {
+    return error_of(board_with(bench, line_start, to));
+  };
+  EXPECT_NE(edit("buffers = 8", "buffers = 1").find("camera.buffers must be in 2..64"), std::string::npos);
+  EXPECT_NE(edit("buffers = 8", "buffers = 8\ntrigger_activation = \"Rising\"").find("camera.trigger_activation"),
+            std::string::npos);
+  EXPECT_NE(edit("buffers = 8", "buffers = 8\npacket_size = 100").find("camera.packet_size"), std::string::npos);
+  EXPECT_NE(edit("buffers = 8", "buffers = 8\noffset_x = -2").find("must not be negative"), std::string::npos);
 }
 
 TEST(BoardFile, MissingFieldIsNamed) {

@@ -8,6 +8,8 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
+#include <cerrno>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -782,10 +784,12 @@ TEST_F(DaemonFixture, SilentOversizedAndUnauthorisedConnectionsAreDropped) {
 TEST_F(DaemonFixture, ConnectionsBeyondTheLimitAreToldBusyAndTheHolderKeepsScanning) {
   start(20000, {}, {}, [](DaemonOptions& options) { options.max_connections = 2; });
   slproto::Connection c = connect();
-  // One silent connection fills the second slot (it is dropped at the handshake timeout).
+  // A silent connection takes no slot: it is still in its hello (issue 17, fault 9).
   const int silent = raw_connect(daemon_->port());
   ASSERT_GE(silent, 0);
   std::this_thread::sleep_for(200ms);
+  // A second host past its hello (status-only) fills the second slot.
+  slproto::Connection second = connect();
   auto third = slproto::connect("127.0.0.1", daemon_->port(), 5s);
   ASSERT_TRUE(third.ok());
   auto reply = slproto::client_handshake(*third, slproto::make_hello("third", "0"));
@@ -793,7 +797,73 @@ TEST_F(DaemonFixture, ConnectionsBeyondTheLimitAreToldBusyAndTheHolderKeepsScann
   EXPECT_EQ(reply.error().code, slproto::Errc::busy) << reply.error().message;
   EXPECT_NE(reply.error().message.find("connections (the limit)"), std::string::npos) << reply.error().message;
   ::close(silent);
+  second.close();
   expect_next_scan_runs(c, 120);
+}
+
+// Issue 17, fault 9: eight silent connections, each reopened as soon as the daemon drops it,
+// used to fill the connection limit (4) and get a real `slscan status` refused as busy 10 of
+// 14 times. A connection in its hello no longer takes a slot.
+TEST_F(DaemonFixture, SilentConnectionsReopenedWhenDroppedCannotLockOutStatus) {
+  start(20000, {}, {}, [](DaemonOptions& options) { options.handshake_timeout = 500ms; });
+  std::atomic<bool> done{false};
+  std::atomic<int> reopened{0};
+  std::thread attacker([&] {
+    std::vector<int> fds(8, -1);
+    while (!done) {
+      for (int& fd : fds) {
+        if (fd >= 0) {
+          char byte;
+          const ssize_t n = ::recv(fd, &byte, 1, MSG_DONTWAIT);
+          if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) continue;  // still open
+          ::close(fd);
+          ++reopened;
+        }
+        fd = raw_connect(daemon_->port());
+      }
+      std::this_thread::sleep_for(1ms);
+    }
+    for (int fd : fds)
+      if (fd >= 0) ::close(fd);
+  });
+  // Start asking once the daemon has dropped (and the attacker reopened) all eight once.
+  for (int i = 0; i < 3000 && reopened.load() < 8; ++i) std::this_thread::sleep_for(10ms);
+  const int reopened_before = reopened.load();
+  int answered = 0;
+  std::string refusals;
+  for (int i = 0; i < 14; ++i) {
+    auto status = ask_status(daemon_->port());
+    if (status.ok())
+      ++answered;
+    else
+      refusals += status.error().message + "\n";
+    std::this_thread::sleep_for(100ms);  // spread the questions over several handshake timeouts
+  }
+  done = true;
+  attacker.join();
+  EXPECT_GE(reopened_before, 8) << "the silent connections were never dropped and reopened";
+  EXPECT_GT(reopened.load(), reopened_before) << "no silent connection was dropped and reopened while asking";
+  EXPECT_EQ(answered, 14) << refusals;
+}
+
+// More connections in their hello than max_handshakes: the oldest is dropped for the newcomer
+// at once (not at its handshake timeout), and the newcomer is served.
+TEST_F(DaemonFixture, TheOldestSilentHelloMakesRoomForANewcomer) {
+  start(20000, {}, {}, [](DaemonOptions& options) {
+    options.max_handshakes = 2;
+    options.handshake_timeout = 30000ms;
+  });
+  const int oldest = raw_connect(daemon_->port());
+  ASSERT_GE(oldest, 0);
+  std::this_thread::sleep_for(100ms);
+  const int newer = raw_connect(daemon_->port());
+  ASSERT_GE(newer, 0);
+  std::this_thread::sleep_for(100ms);
+  auto status = ask_status(daemon_->port());
+  EXPECT_TRUE(status.ok()) << status.error().message;
+  EXPECT_LT(time_until_closed(oldest, 10s), 10s) << "the oldest hello was not dropped";
+  ::close(oldest);
+  ::close(newer);
 }
 
 TEST_F(DaemonFixture, ScanPlanLimitsAreEnforced) {

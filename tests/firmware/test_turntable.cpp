@@ -7,8 +7,8 @@
 #include <cmath>
 #include <thread>
 
+#include "slscand/hal/grbl/grbl_turntable.hpp"
 #include "slscand/hal/sim/turntable_emulator.hpp"
-#include "slscand/hal/turntable.hpp"
 
 using namespace slscand;
 using namespace slscand::hal;

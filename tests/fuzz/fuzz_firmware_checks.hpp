@@ -19,7 +19,7 @@
 #include "scene_build.hpp"  // firmware/rig/src: load_mesh_file
 #include "slrig/rig.hpp"
 #include "slscand/hal/board.hpp"
-#include "slscand/hal/turntable.hpp"
+#include "slscand/hal/grbl/grbl_turntable.hpp"
 
 namespace slproto::fuzz {
 

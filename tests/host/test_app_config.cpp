@@ -1,6 +1,11 @@
 #include <gtest/gtest.h>
 
+#include <fstream>
+#include <stdexcept>
+#include <string>
+
 #include "config.hpp"
+#include "slscan/io/ply.hpp"
 
 namespace slscan::app {
 namespace {
@@ -60,6 +65,40 @@ TEST(AppConfig, MisspeltOrMistypedKeysAreNamed) {
   EXPECT_THROW(apply_config(json::parse(R"({"registration": {"mode": "magic"}})"), options), std::invalid_argument);
   EXPECT_THROW(apply_config(json::parse(R"({"model": {"voxel_mm": -1}})"), options), std::invalid_argument);
   EXPECT_THROW(apply_config(json::parse(R"({"decode": {"smoothing_radius": 5}})"), options), std::invalid_argument);
+}
+
+// Issue 17 case 6: {"registration":{"gates_mm":[1e999]}} was an internal error (exit 5). A number
+// beyond double is refused naming the file; a gate that is no length (negative, 1e308, none at
+// all) names the field, when the config is read rather than when registration runs.
+TEST(AppConfig, RegistrationGatesAreBoundedAndNamed) {
+  const std::string dir = ::testing::TempDir();
+  auto load_error = [&](const std::string& name, const std::string& text) -> std::string {
+    const std::string path = dir + "/" + name;
+    std::ofstream(path) << text;
+    try {
+      (void)load_config(path);
+    } catch (const std::exception& e) {  // IoError or std::invalid_argument: both exit 2
+      EXPECT_TRUE(dynamic_cast<const io::IoError*>(&e) != nullptr ||
+                  dynamic_cast<const std::invalid_argument*>(&e) != nullptr)
+          << e.what();
+      EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_NE(load_error("overflow.json", R"({"registration":{"gates_mm":[1e999]}})").find("number overflow"),
+            std::string::npos);
+  EXPECT_NE(load_error("negative.json", R"({"registration":{"gates_mm":[2, -1]}})")
+                .find("config: registration.gates_mm[1]: -1 is out of range (allowed above 0, at most 10000 mm)"),
+            std::string::npos)
+      << load_error("negative.json", R"({"registration":{"gates_mm":[2, -1]}})");
+  EXPECT_NE(
+      load_error("huge.json", R"({"registration":{"gates_mm":[1e308]}})").find("registration.gates_mm[0]: 1e+308"),
+      std::string::npos)
+      << load_error("huge.json", R"({"registration":{"gates_mm":[1e308]}})");
+  EXPECT_NE(load_error("none.json", R"({"registration":{"gates_mm":[]}})").find("registration.gates_mm: expected 1"),
+            std::string::npos);
+  EXPECT_EQ(load_error("fine.json", R"({"registration":{"gates_mm":[4, 1, 0.25]}})"), "");
 }
 
 }  // namespace

@@ -13,9 +13,11 @@
 #include "slproto/capture.hpp"
 #include "slproto/crc32c.hpp"
 #include "slproto/framing.hpp"
+#include "slproto/zstd_codec.hpp"
 #include "slrig/rig.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/session/reprocess.hpp"
 
 namespace slscan::app {
 namespace {
@@ -110,6 +112,17 @@ TEST_F(Reprocess, BallBarMeasuresTrueAndRunsAreBitIdentical) {
   for (const auto& view : report["scan"]["views"]) {
     EXPECT_GT(view["fusion"]["both"].get<std::size_t>(), 1000u);
     EXPECT_GT(view["turntable_denoise"]["below_min_height"].get<std::size_t>(), 1000u) << "the platform is removed";
+    // The noise estimate of each projector-view and the limits it set (noise-adaptive by
+    // default; the rig is quiet, so the fixed limits are the ones in force).
+    for (const auto& projector : view["projectors"]) {
+      EXPECT_GT(projector["noise"]["depth_mm"].get<double>(), 0.0) << projector.dump();
+      EXPECT_LT(projector["noise"]["depth_mm"].get<double>(), 0.05) << projector.dump();
+      EXPECT_GT(projector["noise"]["coordinate_px"].get<double>(), 0.0) << projector.dump();
+      EXPECT_FLOAT_EQ(projector["noise"]["smoothing_max_deviation_px"].get<float>(), 0.25f);
+    }
+    EXPECT_EQ(view["limits"]["noise_factor"].get<double>(), 3.0);
+    EXPECT_FLOAT_EQ(view["limits"]["flying_pixels_max_abs_mm"].get<float>(), 0.1f);
+    EXPECT_FLOAT_EQ(view["limits"]["fusion_agreement_mm"].get<float>(), 0.2f);
   }
   const core::PointCloud model = io::read_ply((dir_ / "a" / "model.ply").string());
   ASSERT_GT(model.size(), 5000u);
@@ -127,6 +140,22 @@ TEST_F(Reprocess, BallBarMeasuresTrueAndRunsAreBitIdentical) {
       << "two reprocessings of one capture differ";
 }
 
+TEST_F(Reprocess, CompressedCaptureReprocessesToTheSameOutputs) {
+  if (slproto::zstd_codec() == nullptr) GTEST_SKIP() << slproto::zstd_codec_description();
+  const fs::path packed = dir_ / "packed.slcap", back = dir_ / "back.slcap";
+  ASSERT_EQ(run_convert({(dir_ / "scan.slcap").string(), packed.string(), true}, console_), exit_ok);
+  EXPECT_LT(fs::file_size(packed), fs::file_size(dir_ / "scan.slcap"));
+  // Lossless: converting back gives the recorded file byte for byte.
+  ASSERT_EQ(run_convert({packed.string(), back.string(), false}, console_), exit_ok);
+  EXPECT_TRUE(read_bytes(back) == read_bytes(dir_ / "scan.slcap"));
+  ASSERT_EQ(run_reprocess(request((dir_ / "scan.slcap").string(), "raw"), console_), exit_ok);
+  ASSERT_EQ(run_reprocess(request(packed.string(), "packed"), console_), exit_ok);
+  for (const char* file : {"model.ply", "views/view_0.ply", "views/view_5.ply"})
+    EXPECT_TRUE(read_bytes(dir_ / "raw" / file) == read_bytes(dir_ / "packed" / file)) << file;
+  // Converting onto itself is refused instead of destroying the input.
+  EXPECT_THROW((void)run_convert({packed.string(), packed.string(), false}, console_), io::IoError);
+}
+
 TEST_F(Reprocess, TruncatedCaptureReconstructsWhatItHolds) {
   const fs::path cut = dir_ / "cut.slcap";
   fs::copy_file(dir_ / "scan.slcap", cut, fs::copy_options::overwrite_existing);
@@ -139,6 +168,23 @@ TEST_F(Reprocess, TruncatedCaptureReconstructsWhatItHolds) {
   EXPECT_FALSE(report["capture"]["complete"].get<bool>());
   EXPECT_FALSE(report["capture"]["missing"].empty());
   EXPECT_GE(report["scan"]["views"].size(), 5u);
+}
+
+// A capture that holds no complete projector-view (cut inside view 0's first projector) is an
+// error naming the capture, not an empty model reported as success; nothing is written.
+TEST_F(Reprocess, CaptureWithoutACompleteViewIsAnErrorNotAnEmptyModel) {
+  const fs::path cut = dir_ / "stub.slcap";
+  fs::copy_file(dir_ / "scan.slcap", cut, fs::copy_options::overwrite_existing);
+  fs::resize_file(cut, fs::file_size(cut) / 30);  // a few frames of view 0, left projector
+  try {
+    (void)run_reprocess(request(cut.string(), "stub"), console_);
+    FAIL() << "a capture without a complete view was reported as a success";
+  } catch (const io::IoError& e) {
+    EXPECT_NE(std::string(e.what()).find(cut.string()), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("no view has the complete frames"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "stub" / "model.ply"));
+  EXPECT_FALSE(fs::exists(dir_ / "stub" / "report.json"));
 }
 
 TEST_F(Reprocess, CorruptCaptureAndWrongCalibrationAreRefusedClearly) {
@@ -204,6 +250,76 @@ TEST_F(Reprocess, CorruptCalibrationFileIsRefusedNamingFileAndField) {
     }
     EXPECT_FALSE(fs::exists(dir_ / ("corrupt_" + c.name)));
   }
+}
+
+// Issue 17 case 2: camera.fx 1e20 (1e100, 1e308) parsed, passed check() and reprocessing died of
+// SIGSEGV. The calibration file is refused naming the field; and the pipeline given such a
+// calibration in memory (no file check between) ends in a clean error or a result, never a crash.
+TEST_F(Reprocess, AbsurdCalibrationIsRefusedAndNeverCrashesThePipeline) {
+  const slproto::RigCalibration truth = slrig::ground_truth_calibration(*scene_);
+  for (const double fx : {1e20, 1e100, 1e308}) {
+    slproto::RigCalibration absurd = truth;
+    absurd.camera.fx = fx;
+    const fs::path path = dir_ / "absurd.json";
+    {
+      std::ofstream out(path);
+      out << slproto::format_calibration(absurd);
+    }
+    ReprocessRequest r = request((dir_ / "scan.slcap").string(), "absurd");
+    r.calibration_path = path.string();
+    try {
+      (void)run_reprocess(r, console_);
+      ADD_FAILURE() << "fx " << fx << " was accepted";
+    } catch (const io::IoError& e) {
+      EXPECT_NE(std::string(e.what()).find(path.string() + ": camera.fx: "), std::string::npos) << e.what();
+    }
+  }
+  // The reconstruction checks the calibration it is given too (the same bounds).
+  slproto::RigCalibration absurd = truth;
+  absurd.camera.fx = 1e20;
+  core::ReconstructionOptions options;
+  options.build_mesh = false;
+  try {
+    (void)session::reprocess_capture((dir_ / "scan.slcap").string(), absurd, options, session::QuietLog());
+    ADD_FAILURE() << "fx 1e20 was reconstructed with";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("camera.fx: 1e+20 px is not a focal length"), std::string::npos) << e.what();
+  }
+}
+
+// Issue 17 case 6: --out naming an existing file was an internal error (exit 5).
+TEST_F(Reprocess, OutputPathThatIsAFileIsRefusedNamingIt) {
+  const fs::path file = dir_ / "a_file";
+  std::ofstream(file) << "not a folder";
+  try {
+    (void)run_reprocess(request((dir_ / "scan.slcap").string(), "a_file"), console_);
+    FAIL() << "--out naming a file was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()), "reprocess --out " + file.string() + ": exists and is not a folder");
+  }
+  EXPECT_EQ(read_bytes(file), "not a folder");
+
+  // scan: refused before the scanner is asked for anything (port 1: nothing listens there).
+  ScanCommand scan;
+  scan.port = 1;
+  scan.calibration_path = (dir_ / "calib.json").string();
+  scan.output_dir = file.string();
+  try {
+    (void)run_scan(scan, console_);
+    FAIL() << "scan --out naming a file was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()), "scan --out " + file.string() + ": exists and is not a folder");
+  }
+  scan.output_dir = (file / "sub").string();  // a folder that cannot be made: its parent is a file
+  try {
+    (void)run_scan(scan, console_);
+    FAIL() << "scan --out that cannot be created was accepted";
+  } catch (const io::IoError& e) {
+    EXPECT_NE(std::string(e.what()).find("scan --out " + scan.output_dir + ": cannot create the folder ("),
+              std::string::npos)
+        << e.what();
+  }
+  EXPECT_EQ(read_bytes(file), "not a folder");
 }
 
 }  // namespace

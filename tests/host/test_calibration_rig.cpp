@@ -24,7 +24,7 @@
 #include "slrig/rig.hpp"
 #include "slscan/core/calibration_rig.hpp"
 #include "slscan/io/calibration_capture_files.hpp"
-#include "virtual_calibration.hpp"
+#include "slscan/virtual_rig/virtual_calibration.hpp"
 
 namespace slscan::core {
 namespace {
@@ -36,8 +36,8 @@ constexpr double kRad = std::numbers::pi / 180.0;
 struct Fixture {
   slrig::Scene scene;
   slrig::SceneObject board;
-  app::VirtualCalibrationCapture rendered;  // capture + truth
-  CalibrationCapture capture;               // read back from the capture folder
+  virtual_rig::VirtualCalibrationCapture rendered;  // capture + truth
+  CalibrationCapture capture;                       // read back from the capture folder
   std::vector<double> actual_table_deg;
   std::vector<RigidTransform> cam_from_board;  // per pose, the truth
   std::string summary;
@@ -52,7 +52,8 @@ const Fixture& fixture() {
     Fixture out;
     out.scene = slrig::scene_preset("calibration", slrig::RigSize::small).value();
     out.board = out.scene.objects.at(0);
-    out.rendered = app::render_virtual_calibration_capture(out.scene, "virtual rig, calibration preset (small)");
+    out.rendered =
+        virtual_rig::render_virtual_calibration_capture(out.scene, "virtual rig, calibration preset (small)");
     out.truth = out.rendered.truth;
     out.actual_table_deg = out.rendered.actual_table_deg;
     out.cam_from_board = out.rendered.cam_from_board;
@@ -156,7 +157,7 @@ void every_pose_is_used(const Fixture& f) {
 // 3.85, rounded down). Measured figures are from this test (20 poses: 14 free, 6 on the table,
 // every one lit by both projectors' patterns along both axes);
 // the full rig's, which meet the unscaled targets, are in docs/calibration.md.
-void camera_matches_truth(const app::CalibrationErrors& e) {
+void camera_matches_truth(const virtual_rig::CalibrationErrors& e) {
   // Measured fx -0.004 %, fy -0.001 %, cx +0.17 px, cy -0.11 px, RMS 0.038 px.
   EXPECT_LT(std::abs(e.camera_fx_pct), 0.1);
   EXPECT_LT(std::abs(e.camera_fy_pct), 0.1);
@@ -165,7 +166,7 @@ void camera_matches_truth(const app::CalibrationErrors& e) {
   EXPECT_LT(e.camera_rms_px, 0.1);
 }
 
-void projectors_match_truth(const app::CalibrationErrors& e) {
+void projectors_match_truth(const virtual_rig::CalibrationErrors& e) {
   for (std::size_t s = 0; s < 2; ++s) {
     const auto& p = e.projectors[s];
     // Measured focal within 0.024 %, translation 0.16 / 0.06 mm, rotation 0.027 / 0.036 deg,
@@ -178,7 +179,7 @@ void projectors_match_truth(const app::CalibrationErrors& e) {
   }
 }
 
-void turntable_matches_truth(const Fixture& f, const app::CalibrationErrors& e) {
+void turntable_matches_truth(const Fixture& f, const virtual_rig::CalibrationErrors& e) {
   // Issue: axis 0.02 deg, position 0.1 mm (full rig); scaled 0.077 deg, 0.385 mm; measured
   // 0.008 deg, 0.12 mm.
   EXPECT_LT(e.axis_direction_deg, 0.05);
@@ -255,7 +256,7 @@ TEST(CalibrationRig, RecoversTheRigsTruth) {
     SCOPED_TRACE("EveryPoseIsUsed");
     every_pose_is_used(f);
   }
-  const app::CalibrationErrors errors = app::calibration_errors(f.result, f.rendered);
+  const virtual_rig::CalibrationErrors errors = virtual_rig::calibration_errors(f.result, f.rendered);
   std::printf("against the rig's truth:\n%s", errors.table().c_str());
   {
     SCOPED_TRACE("CameraMatchesTruth");

@@ -170,6 +170,21 @@ TEST_F(Import, InverseFramesAndConventionMismatchesAreNamed) {
       "gray": {"files": ["f2.png"]}, "inverse": ["f3.png"]})");
   EXPECT_NE(old_field.find("list the inverse (negative) Gray frames as gray.inverse_files"), std::string::npos)
       << old_field;
+  // Strict at every level, with the path and the nearest known name.
+  const std::string misspelt = parse_error(R"({"projector": {"width": 64, "height": 32}, "white": "f0.png",
+      "black": "f1.png", "gray": {"files": ["f2.png", "f3.png", "f4.png"]},
+      "phase": {"files": ["f0.png", "f1.png", "f2.png"], "period_px": 8, "offset_radians": 0.3}})");
+  EXPECT_NE(misspelt.find("seq.json: phase.offset_radians: unknown field; did you mean offset_rad?"), std::string::npos)
+      << misspelt;
+  const std::string in_projector = parse_error(R"({"projector": {"width": 64, "heigth": 32},
+      "gray": {"files": ["f2.png"]}})");
+  EXPECT_NE(in_projector.find("projector.heigth: unknown field; did you mean height?"), std::string::npos)
+      << in_projector;
+  const std::string in_pattern = parse_error(R"({"projector": {"width": 64, "height": 32}, "white": "f0.png",
+      "black": "f1.png", "gray": {"files": {"pattern": "f%d.png", "frist": 2, "count": 4}, "bits_not_projected": 2}})");
+  EXPECT_NE(in_pattern.find("gray.files.frist: unknown field; did you mean first?"), std::string::npos) << in_pattern;
+  const std::string duplicate = parse_error(R"({"projector": {"width": 64, "width": 32}})");
+  EXPECT_NE(duplicate.find("duplicate"), std::string::npos) << duplicate;
   const std::string nothing = parse_error(R"({"projector": {"width": 64, "height": 32},
       "gray": {"files": ["f2.png", "f3.png", "f4.png", "f5.png"], "bits_not_projected": 2}})");
   EXPECT_NE(nothing.find("give white and black frames, gray.inverse_files or phase frames"), std::string::npos)
@@ -241,7 +256,217 @@ TEST_F(Import, OpenCvStereoNamingAndPoseDirection) {
     io::read_foreign_calibration(path, options);
     ADD_FAILURE() << "no distortion";
   } catch (const io::IoError& e) {
-    EXPECT_NE(std::string(e.what()).find("no kc or D1"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("no known calibration key set fits; the file has the keys K1"),
+              std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("calibration_keys"), std::string::npos) << e.what();
+  }
+}
+
+// Other tools' key names: the built-in sets, an explicit mapping, Kalibr and ROS YAML.
+TEST_F(Import, CalibrationKeySetsOfOtherTools) {
+  const cv::Mat k1 = (cv::Mat_<double>(3, 3) << 1000, 0, 320, 0, 1001, 240, 0, 0, 1);
+  const cv::Mat k2 = (cv::Mat_<double>(3, 3) << 1200, 0, 400, 0, 1200, 300, 0, 0, 1);
+  const cv::Mat d1 = (cv::Mat_<double>(1, 5) << -0.1, 0.01, 0, 0, 0);
+  const cv::Mat d2 = (cv::Mat_<double>(1, 5) << 0.05, 0, 0, 0, 0);
+  const cv::Mat r = cv::Mat::eye(3, 3, CV_64F);
+  const cv::Mat t = (cv::Mat_<double>(3, 1) << -100, 0, 10);
+  io::ForeignCalibrationOptions options;
+  options.camera_width = 640;
+  options.camera_height = 480;
+  options.projector_width = 800;
+  options.projector_height = 600;
+  auto expect_rig = [&](const slproto::RigCalibration& rig, double scale = 1) {
+    EXPECT_EQ(rig.camera.fy, 1001);
+    EXPECT_EQ(rig.camera.distortion.k1, -0.1);
+    EXPECT_EQ(rig.projectors[0].intrinsics.fx, 1200);
+    EXPECT_NEAR(rig.projectors[0].cam_from_proj.inverse().t[0], -100 * scale, 1e-9);
+  };
+  // OpenCV's stereo sample: intrinsics.yml and extrinsics.yml.
+  {
+    cv::FileStorage in((dir_ / "intrinsics.yml").string(), cv::FileStorage::WRITE);
+    in << "M1" << k1 << "D1" << d1 << "M2" << k2 << "D2" << d2;
+    cv::FileStorage ex((dir_ / "extrinsics.yml").string(), cv::FileStorage::WRITE);
+    ex << "R" << r << "T" << t << "R1" << r << "P1" << cv::Mat::eye(3, 4, CV_64F);
+  }
+  io::ForeignCalibrationOptions two = options;
+  two.more_paths = {(dir_ / "extrinsics.yml").string()};
+  expect_rig(io::read_foreign_calibration((dir_ / "intrinsics.yml").string(), two));
+  try {
+    io::read_foreign_calibration((dir_ / "intrinsics.yml").string(), options);
+    ADD_FAILURE() << "no pose in intrinsics.yml alone";
+  } catch (const io::IoError& e) {
+    EXPECT_NE(std::string(e.what()).find("the file has the keys M1, D1, M2, D2"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("OpenCV stereo sample, lacks R, T"), std::string::npos) << e.what();
+  }
+  // MATLAB's stereoParametersToOpenCV names.
+  {
+    cv::FileStorage fs((dir_ / "matlab.yml").string(), cv::FileStorage::WRITE);
+    fs << "intrinsicMatrix1" << k1 << "distortionCoefficients1" << d1 << "intrinsicMatrix2" << k2
+       << "distortionCoefficients2" << d2 << "rotationMatrix" << r << "translationVector" << t;
+  }
+  expect_rig(io::read_foreign_calibration((dir_ / "matlab.yml").string(), options));
+  // Anything else, named in the description.
+  {
+    cv::FileStorage fs((dir_ / "custom.xml").string(), cv::FileStorage::WRITE);
+    fs << "CamK" << k1 << "CamD" << d1 << "ProK" << k2 << "ProD" << d2 << "Rlp" << r << "Tlp" << t;
+  }
+  io::ForeignCalibrationOptions mapped = options;
+  mapped.keys = io::calibration_keys_from({{"camera_matrix", "CamK"},
+                                           {"camera_distortion", "CamD"},
+                                           {"projector_matrix", "ProK"},
+                                           {"projector_distortion", "ProD"},
+                                           {"rotation", "Rlp"},
+                                           {"translation", "Tlp"}},
+                                          "seq.json");
+  expect_rig(io::read_foreign_calibration((dir_ / "custom.xml").string(), mapped));
+  EXPECT_THROW(io::calibration_keys_from({{"camera_matrx", "CamK"}}, "seq.json"), io::IoError);
+  // Kalibr camchain (metres).
+  std::ofstream((dir_ / "camchain.yaml").string()) << R"(cam0:
+  camera_model: pinhole
+  intrinsics: [1000, 1001, 320, 240]
+  distortion_model: radtan
+  distortion_coeffs: [-0.1, 0.01, 0, 0]
+  resolution: [640, 480]
+cam1:
+  T_cn_cnm1:
+  - [1, 0, 0, -0.1]
+  - [0, 1, 0, 0]
+  - [0, 0, 1, 0.01]
+  - [0, 0, 0, 1]
+  camera_model: pinhole
+  intrinsics: [1200, 1200, 400, 300]
+  distortion_model: radtan
+  distortion_coeffs: [0.05, 0, 0, 0]
+  resolution: [800, 600]
+)";
+  expect_rig(io::read_foreign_calibration((dir_ / "camchain.yaml").string(), options));
+  // ROS camera_info, one file per device; the projector's P holds Tx = -fx B (metres).
+  std::ofstream((dir_ / "camera.yaml").string()) << R"(image_width: 640
+image_height: 480
+camera_name: camera
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [1000, 0, 320, 0, 1001, 240, 0, 0, 1]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.1, 0.01, 0, 0, 0]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [1000, 0, 320, 0, 0, 1001, 240, 0, 0, 0, 1, 0]
+)";
+  std::ofstream((dir_ / "projector.yaml").string()) << R"(image_width: 800
+image_height: 600
+camera_name: projector
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [1200, 0, 400, 0, 1200, 300, 0, 0, 1]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [0.05, 0, 0, 0, 0]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [1200, 0, 400, 120, 0, 1200, 300, 0, 0, 0, 1, 0]
+)";
+  io::ForeignCalibrationOptions ros = options;
+  ros.more_paths = {(dir_ / "projector.yaml").string()};
+  const auto rig = io::read_foreign_calibration((dir_ / "camera.yaml").string(), ros);
+  EXPECT_EQ(rig.camera.fy, 1001);
+  EXPECT_EQ(rig.projectors[0].intrinsics.fx, 1200);
+  EXPECT_NEAR(rig.projectors[0].cam_from_proj.inverse().t[0], 100, 1e-9) << "Tx / fx = 0.1 m";
+}
+
+// Issue 17 cases 6 and 7: an import description's wrong types were JSON library errors (exit 5
+// "internal error"), an integer past int wrapped, and "g_%999999999d.png" cost 24 s of CPU per 7
+// names. Each is refused naming the field.
+TEST_F(Import, DescriptionTypesRangesAndPatternWidthsAreChecked) {
+  auto parse_error = [&](const std::string& files, const std::string& extra = "") -> std::string {
+    const std::string description = R"({"projector": {"width": 64, "height": 32}, "white": "f0.png",
+        "black": "f1.png", "gray": {"files": )" +
+                                    files + R"(, "bits_not_projected": 2})" + extra + "}";
+    try {
+      io::parse_sequence_description(description, dir_.string(), "seq.json");
+    } catch (const io::IoError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  const std::string wide = parse_error(R"({"pattern": "g_%999999999d.png", "count": 7})");
+  EXPECT_NE(wide.find("seq.json: gray.files.pattern 'g_%999999999d.png': the width 999999999 is over 16"),
+            std::string::npos)
+      << wide;
+  EXPECT_NE(parse_error(R"({"pattern": "g_%17d.png", "count": 4})").find("the width 17 is over 16"), std::string::npos);
+  EXPECT_EQ(parse_error(R"({"pattern": "f%016d.png", "count": 4})"), "");  // wide enough for any int
+  const std::string first = parse_error(R"({"pattern": "f%d.png", "first": "abc", "count": 4})");
+  EXPECT_NE(first.find("seq.json: gray.files.first must be an integer in [0, 1000000], got \"abc\""), std::string::npos)
+      << first;
+  const std::string count = parse_error(R"({"pattern": "f%d.png", "first": 2, "count": 4294967300})");
+  EXPECT_NE(count.find("gray.files.count must be an integer in [1, 4096], got 4294967300"), std::string::npos) << count;
+  const std::string axis = parse_error(R"(["f2.png", "f3.png", "f4.png", "f5.png"])", R"(, "axis": 5)");
+  EXPECT_NE(axis.find("seq.json: axis must be a string, got 5"), std::string::npos) << axis;
+  const std::string order = parse_error(R"(["f2.png", "f3.png", "f4.png", "f5.png"], "bit_order": [1])");
+  EXPECT_NE(order.find("seq.json: gray.bit_order must be a string, got [1]"), std::string::npos) << order;
+  const std::string bits = [&] {
+    try {
+      io::parse_sequence_description(R"({"projector": {"width": 64, "height": 32}, "white": "f0.png",
+          "black": "f1.png", "gray": {"files": ["f2.png"], "bits_not_projected": "two"}})",
+                                     dir_.string(), "seq.json");
+    } catch (const io::IoError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  }();
+  EXPECT_NE(bits.find("gray.bits_not_projected must be an integer in [0, 12], got \"two\""), std::string::npos) << bits;
+  const std::string width = [&] {
+    try {
+      io::parse_sequence_description(R"({"projector": {"width": 4294967360, "height": 32}, "gray": {"files": []}})",
+                                     dir_.string(), "seq.json");
+    } catch (const io::IoError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  }();
+  EXPECT_NE(width.find("projector.width must be an integer in [1, 65535], got 4294967360"), std::string::npos) << width;
+}
+
+// Issue 17 case 8, foreign calibrations: an image size past int was wrapped (4294967936 -> 640).
+TEST_F(Import, ForeignImageSizesAreRefusedNotWrapped) {
+  const std::string path = (dir_ / "stereo.yml").string();
+  {
+    std::ofstream out(path);
+    out << "%YAML:1.0\n---\n"
+        << "K1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [1000., 0., 320., 0., 1000., 240., 0., 0., "
+           "1.]\n"
+        << "D1: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [0., 0., 0., 0., 0.]\n"
+        << "K2: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [1200., 0., 400., 0., 1200., 300., 0., 0., "
+           "1.]\n"
+        << "D2: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [0., 0., 0., 0., 0.]\n"
+        << "R: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [0., 0.3, 0.]\n"
+        << "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [-100., 0., 10.]\n"
+        << "image_width: 4294967936\nimage_height: 480\nprojector_width: 800\nprojector_height: 600\n";
+  }
+  try {
+    const auto rig = io::read_foreign_calibration(path, {});
+    ADD_FAILURE() << "read as " << rig.camera.width << " x " << rig.camera.height;
+  } catch (const io::IoError& e) {
+    EXPECT_NE(std::string(e.what()).find("image_width"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("is not an image size"), std::string::npos) << e.what();
   }
 }
 

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <numbers>
 #include <random>
+#include <string>
 
 #include "slscan/core/mesh.hpp"
 
@@ -95,6 +96,16 @@ TEST(PoissonMesh, RejectsBadInput) {
   EXPECT_THROW(slscan::core::poisson_mesh(cloud), std::invalid_argument);
   cloud.normals.push_back(Eigen::Vector3f::Zero());
   EXPECT_THROW(slscan::core::poisson_mesh(cloud), std::invalid_argument);
+  // Issue 17: "poisson_mesh: point 6190 is not finite" said neither what was meshed nor how big.
+  cloud.normals.back() = Eigen::Vector3f::UnitZ();
+  cloud.points[150].x() = std::nanf("");
+  try {
+    (void)slscan::core::poisson_mesh(cloud);
+    ADD_FAILURE() << "a NaN point was meshed";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "poisson_mesh: point 150 of the " + std::to_string(cloud.size()) + "-point model is not finite");
+  }
 }
 
 TEST(MeshTopology, CountsOpenAndFlippedEdges) {

@@ -161,6 +161,19 @@ TEST(PlanVariants, PhaseThresholdedByItsMeanAndWithoutComplementaryBit) {
          0.001, 0.95});
 }
 
+// Another scanner's phase origin, stated in the plan (phase.offset_rad in a description): the
+// decoder removes it, so the reconstruction is the default plan's (issue 20).
+TEST(PlanVariants, PhaseOriginOffsetBy037RadReconstructsAsTheDefault) {
+  PatternPlanConfig offset;
+  offset.phase_offset_rad = 0.37;
+  check({"default plan, phase origin offset by 0.37 rad", offset, 0.012, 0.15, 0.0005});
+  const Accuracy base = reconstruct(PatternPlanConfig{}, 2, 4.0);
+  const Accuracy shifted = reconstruct(offset, 2, 4.0);
+  EXPECT_NEAR(shifted.median_mm, base.median_mm, 0.1 * base.median_mm);
+  EXPECT_NEAR(shifted.p99_mm, base.p99_mm, 0.1 * base.p99_mm);
+  EXPECT_NEAR(static_cast<double>(shifted.points), static_cast<double>(base.points), 0.002 * base.points);
+}
+
 // Gray code alone, 2-px steps: depth is quantised to a step (~1.3 mm per projector px at
 // this geometry, so errors up to ~1.3 mm and a median near half that). The inverse frames
 // must do as well as white/black thresholds (measured: median 0.59 mm, p99 1.64-1.69 mm for

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <numbers>
 #include <random>
+#include <string>
 
 #include "slscan/core/normals.hpp"
 #include "slscan/core/registration.hpp"
@@ -266,6 +267,15 @@ TEST(Registration, RejectsBadInput) {
   options.icp.gates_mm.clear();
   EXPECT_THROW(slscan::core::register_views(scan.views, scan.angles_deg, scan.calibration, options),
                std::invalid_argument);
+  // Issue 17: "view 0 is empty" named neither the stage nor what was missing.
+  views = scan.views;
+  views[1] = slscan::core::PointCloud{};
+  try {
+    (void)slscan::core::register_views(views, scan.angles_deg, scan.calibration);
+    ADD_FAILURE() << "an empty view was registered";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()), "register_views: view 1 is empty (no points to register)");
+  }
 }
 
 }  // namespace

@@ -69,13 +69,22 @@ json sample_report() {
       {"measurement",
        {{"ball_bar",
          {{"centre_distance_mm", 150.12346},
+          {"reference_distance_mm", 150.1164},
           {"distance_error_um", 6.85},
+          {"sd", {{"value_um", 6.85}, {"mpe_um", 10.0}, {"verdict", "PASS"}}},
+          {"region_rule", {{"text", "points within 0.50 mm of the robust fit"}}},
           {"spheres",
            {{{"centre_mm", {0, 0, 0}},
              {"diameter_mm", 30.0012},
-             {"form_error_mm", 0.004},
-             {"rms_mm", 0.001},
-             {"points", 900}}}}}}}},
+             {"calibrated_diameter_mm", 30.0008},
+             {"pf", {{"value_um", 12.3}, {"mpe_um", 10.0}, {"verdict", "FAIL"}}},
+             {"pf_all_points_um", 31.5},
+             {"ps", {{"value_um", 0.4}, {"verdict", "not judged (no MPE given)"}}},
+             {"rms_um", 1.0},
+             {"points", 900},
+             {"left_out", 2},
+             {"cone_points", 40},
+             {"joints", {{{"axis", {1, 0, 0}}, {"half_angle_deg", 22.5}, {"attachment_points", 30}}}}}}}}}}},
       {"scan",
        {{"views", {view}},
         {"registration",
@@ -132,6 +141,14 @@ TEST(ReportHtml, PageCarriesTheFiguresEscaped) {
   for (const char* figure : {"150.1235", "6.8", "30.0012", "0.0123", "812", "4480", "81.5", "12.5",
                              "4000 / 900 / 0 / 3", "4500 / 390 / 0 / 10", "view 1: all", "incomplete"})
     EXPECT_NE(html.find(figure), std::string::npos) << figure;
+  // The ball bar as VDI/VDE 2634-2 figures with their verdicts, never an unexplained "form error".
+  for (const char* figure :
+       {"SD, sphere-spacing error", "+6.8 &micro;m <span class=\"pass\">PASS", "PF, probing error form",
+        "12.3 &micro;m <span class=\"fail\">FAIL</span> (MPE 10.0 &micro;m)", "31.5 &micro;m",
+        "+0.4 &micro;m <span class=\"note\">(no MPE given)", "40 points in 22.5&deg;",
+        "points within 0.50 mm of the robust fit", "900 (2)"})
+    EXPECT_NE(html.find(figure), std::string::npos) << figure;
+  EXPECT_EQ(html.find("form error"), std::string::npos);
   EXPECT_EQ(html.find("<b>scan</b>"), std::string::npos) << "a file name went into the page unescaped";
   EXPECT_NE(html.find("&lt;b&gt;scan&lt;/b&gt;.slcap"), std::string::npos);
   EXPECT_NE(html.find("<img src=\"pictures/view_0_fusion_source.png\""), std::string::npos);

@@ -5,6 +5,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <stdexcept>
 #include <vector>
@@ -127,3 +128,23 @@ TEST(ViewOverlap, MismatchedInputsAndBadOptionsAreRefused) {
 }
 
 }  // namespace
+
+// Issue 17: a calibration with fx 1e20 (1e100, 1e308) projected points to pixel coordinates no
+// long holds, and std::lround of them crashed reprocessing. Such projections have no neighbour
+// in the grid: nothing is replaced, nothing is undefined (the test runs under UBSan/ASan in CI).
+TEST(ViewOverlap, HugeOrNonFiniteProjectionsReplaceNothing) {
+  const std::vector<Eigen::Isometry3d> poses{table_from_view(0), table_from_view(60)};
+  const View a = render(poses[0]), b = render(poses[1]);
+  const std::vector<slscan::core::PointCloud> points{a.points, b.points};
+  for (const double fx : {1e20, 1e100, 1e308, std::numeric_limits<double>::infinity()}) {
+    slproto::PinholeModel absurd = camera();
+    absurd.fx = absurd.fy = fx;
+    const auto selection = slscan::core::select_best_views(points, {&a.grid, &b.grid}, poses, absurd);
+    ASSERT_EQ(selection.keep.size(), 2u) << fx;
+    EXPECT_EQ(selection.counts.input, a.points.size() + b.points.size()) << fx;
+    EXPECT_EQ(selection.counts.replaced, 0u) << fx;
+  }
+  slproto::PinholeModel shifted = camera();
+  shifted.cx = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_EQ(slscan::core::select_best_views(points, {&a.grid, &b.grid}, poses, shifted).counts.replaced, 0u);
+}

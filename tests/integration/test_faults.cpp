@@ -17,6 +17,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <optional>
 #include <thread>
 
@@ -240,6 +241,87 @@ TEST_F(Faults, DiskFullWhileRecordingFailsClearlyAndKeepsTheCompleteFrames) {
     std::this_thread::sleep_for(50ms);
   EXPECT_NE(daemon.log().find("the host cannot record"), std::string::npos) << daemon.log();
   expect_scan_succeeds(daemon, "after_full");
+}
+
+// The output folder is replaced as a set (issue 17, fault 4): a reprocess that fails on a full
+// disk (a file-size limit: its model fits, a later file of the set does not) into a folder
+// holding a complete set leaves that set exactly as it was; a later complete run replaces all
+// of it, leaving nothing of the old set (its mesh) beside the new one.
+TEST_F(Faults, DiskFullWhileWritingOutputsKeepsThePreviousSet) {
+  Slscand daemon(dir_ / "set_slscand");
+  expect_scan_succeeds(daemon, "set_scan");
+  const fs::path capture = dir_ / "set_scan" / "capture.slcap";
+  std::ofstream(dir_ / "thin.json") << R"({"mesh": {"enabled": false}, "model": {"voxel_mm": 0.5}})";
+  const auto reprocess = [&](const std::string& out, const std::string& config, const std::string& log,
+                             rlim_t limit = 0) {
+    std::vector<std::string> args{
+        SLSCAN_BIN, "reprocess",          capture.string(), "--calib", (dir_ / "calib.json").string(),
+        "--out",    (dir_ / out).string()};
+    if (!config.empty()) args.insert(args.end(), {"--config", (dir_ / config).string()});
+    return run(args, dir_ / log, {}, limit);
+  };
+  const auto snapshot = [](const fs::path& dir) {
+    std::map<std::string, std::string> files;
+    for (const auto& entry : fs::recursive_directory_iterator(dir))
+      files[fs::relative(entry.path(), dir).generic_string()] =
+          entry.is_regular_file() ? read_text(entry.path()) : std::string("<folder>");
+    return files;
+  };
+  // The full run's files, to pick a limit its model fits under and a later file does not.
+  const Finished probe = reprocess("set_probe", "", "set_probe");
+  ASSERT_EQ(probe.exit_code, 0) << probe.err;
+  const auto model_bytes = fs::file_size(dir_ / "set_probe" / "model.ply");
+  bool later_is_larger = false;
+  for (const char* later : {"mesh.ply", "mesh.stl", "views/view_0.ply", "report.html"})
+    later_is_larger = later_is_larger || fs::file_size(dir_ / "set_probe" / later) > model_bytes + 1;
+  if (!later_is_larger) GTEST_SKIP() << "no output of the set is larger than model.ply here: cannot fail midway";
+
+  // A complete, different set (thinned, no mesh) in the folder...
+  const Finished first = reprocess("set_out", "thin.json", "set_first");
+  ASSERT_EQ(first.exit_code, 0) << first.err;
+  ASSERT_FALSE(fs::exists(dir_ / "set_out" / "mesh.ply"));
+  const auto before = snapshot(dir_ / "set_out");
+  ASSERT_NE(read_text(dir_ / "set_out" / "model.ply"), read_text(dir_ / "set_probe" / "model.ply"));
+  // ...then the full run with a disk that fills after its model.
+  const Finished full = reprocess("set_out", "", "set_full", model_bytes + 1);
+  EXPECT_EQ(full.exit_code, 2) << full.err;
+  EXPECT_NE(full.err.find("write failed"), std::string::npos) << full.err;
+  EXPECT_NE(full.err.find("the previous outputs there are as they were"), std::string::npos) << full.err;
+  EXPECT_EQ(snapshot(dir_ / "set_out"), before) << "the failed run left a mixed set";
+
+  // A complete run with the mesh replaces the set...
+  const Finished meshed = reprocess("set_out", "", "set_meshed");
+  ASSERT_EQ(meshed.exit_code, 0) << meshed.err;
+  EXPECT_EQ(read_text(dir_ / "set_out" / "model.ply"), read_text(dir_ / "set_probe" / "model.ply"));
+  EXPECT_TRUE(fs::exists(dir_ / "set_out" / "mesh.stl"));
+  // ...and a thinned run without one leaves no mesh of the earlier run beside its model.
+  const Finished thin = reprocess("set_out", "thin.json", "set_thin");
+  ASSERT_EQ(thin.exit_code, 0) << thin.err;
+  EXPECT_FALSE(fs::exists(dir_ / "set_out" / "mesh.ply"));
+  EXPECT_FALSE(fs::exists(dir_ / "set_out" / "mesh.stl"));
+  EXPECT_EQ(snapshot(dir_ / "set_out").size(), before.size());
+}
+
+// A capture cannot be recomputed (issue 17, fault 5): a second scan into a folder that holds
+// one is refused, naming the file and --overwrite, and the capture is left as it was; with
+// --overwrite it is replaced.
+TEST_F(Faults, ScanRefusesToReplaceACaptureWithoutOverwrite) {
+  Slscand daemon(dir_ / "again_slscand");
+  expect_scan_succeeds(daemon, "again");
+  const fs::path capture = dir_ / "again" / "capture.slcap";
+  const std::string recorded = read_text(capture);
+  const Finished refused = run(scan_args(daemon.address(), dir_ / "again"), dir_ / "again_refused");
+  EXPECT_EQ(refused.exit_code, 1) << refused.err;
+  EXPECT_NE(refused.err.find(capture.string()), std::string::npos) << refused.err;
+  EXPECT_NE(refused.err.find("--overwrite"), std::string::npos) << refused.err;
+  EXPECT_TRUE(read_text(capture) == recorded) << "the capture was touched";
+
+  std::vector<std::string> args = scan_args(daemon.address(), dir_ / "again");
+  args.push_back("--overwrite");
+  const Finished replaced = run(args, dir_ / "again_overwrite");
+  EXPECT_EQ(replaced.exit_code, 0) << replaced.err;
+  EXPECT_EQ(frames_in(capture), 38u);
+  EXPECT_FALSE(read_text(capture) == recorded) << "a new scan (new scan id) was not recorded";
 }
 
 TEST_F(Faults, NetworkAddressNeedsAPrivateTokenFile) {

@@ -148,7 +148,7 @@ TEST(ClosedForm, PointInProjectorShadowGetsOnlyAmbient) {
   EXPECT_TRUE(std::isnan(truth.projector_coord[0][i]));
 
   std::vector<std::uint8_t> frame(renderer.frame_bytes());
-  const double ambient_dn = scene.sensor.white_level_dn * 0.8 * scene.ambient + scene.sensor.dark_level_dn;
+  const double ambient_dn = scene.sensor.white_level_dn * 0.8 * scene.ambient.level + scene.sensor.dark_level_dn;
   renderer.render(ProjectorSide::left, 0, frame);  // all-white pattern
   EXPECT_NEAR(frame[i], ambient_dn, 0.5 + 1e-9);
   renderer.render_ambient(frame);
@@ -159,7 +159,7 @@ TEST(ClosedForm, PointInProjectorShadowGetsOnlyAmbient) {
 
 TEST(ClosedForm, FacingWhiteMatteReachesTheWhiteLevel) {
   Scene scene = small_rig_without_objects();
-  scene.ambient = 0;
+  scene.ambient.level = 0;
   scene.turntable.platform_radius_mm = 1e-3;  // out of the way of the plate
   // A white matte plane through the table centre facing the left projector.
   const auto& proj = scene.projectors[0].cam_from_proj;

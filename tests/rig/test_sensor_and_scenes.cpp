@@ -109,7 +109,8 @@ TEST(Sensor, ClipsAtFullScaleAndKeepsDarkLevel) {
 }
 
 TEST(Presets, AllPresetsRenderWithTheirObjectsInViewAndLit) {
-  for (const char* name : {"ballbar", "plane", "sphere", "blade", "teacup", "calibration"}) {
+  for (const char* name :
+       {"ballbar", "plane", "sphere", "blade", "teacup", "calibration", "shiny_blade", "dark_blade"}) {
     for (RigSize size : {RigSize::small, RigSize::full}) {
       auto scene = scene_preset(name, size);
       ASSERT_TRUE(scene.ok()) << name;

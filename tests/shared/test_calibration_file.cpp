@@ -77,6 +77,31 @@ TEST(Calibration, MissingFieldIsNamed) {
   EXPECT_NE(parsed.error().message.find("camera.fy: missing"), std::string::npos) << parsed.error().message;
 }
 
+TEST(Calibration, UnknownAndDuplicateKeysAreRefused) {
+  std::string text = format_calibration(example());
+  const auto pos = text.find("\"fy\"");
+  ASSERT_NE(pos, std::string::npos);
+  std::string unknown = text;
+  unknown.insert(pos, "\"skew\": 0.0, ");
+  auto parsed = parse_calibration(unknown, "cal.json");
+  ASSERT_FALSE(parsed.ok());
+  EXPECT_EQ(parsed.error().message, "cal.json: camera.skew: unknown field");
+  std::string twice = text;
+  twice.insert(pos, "\"fx\": 1.0, ");
+  parsed = parse_calibration(twice, "cal.json");
+  ASSERT_FALSE(parsed.ok());
+  EXPECT_EQ(parsed.error().message, "cal.json: camera.fx: duplicate key");
+  // A width beyond int is refused, never wrapped into a plausible one.
+  std::string wide = text;
+  const auto width = wide.find("\"width\": 640");
+  ASSERT_NE(width, std::string::npos);
+  wide.replace(width, 14, "\"width\": 4294967936");
+  parsed = parse_calibration(wide, "cal.json");
+  ASSERT_FALSE(parsed.ok());
+  EXPECT_NE(parsed.error().message.find("camera.width: 4294967936 is out of range"), std::string::npos)
+      << parsed.error().message;
+}
+
 TEST(Calibration, WrongVersionAndImpossibleValuesAreRejected) {
   RigCalibration cal = example();
   std::string text = format_calibration(cal);
@@ -100,6 +125,57 @@ TEST(Calibration, WrongVersionAndImpossibleValuesAreRejected) {
 
   EXPECT_FALSE(parse_calibration("{ not json").ok());
   EXPECT_FALSE(parse_calibration(format_calibration(example()).substr(0, 300)).ok());
+}
+
+// Issue 17: camera.fx 1e20 parsed, passed check() and crashed reprocessing (lround of a pixel
+// coordinate of 1e20). Every value is held to physical bounds when a calibration is read, and
+// the message names the field and shows the value in a few digits.
+TEST(Calibration, AbsurdButParseableValuesAreRefusedNamingTheField) {
+  struct Case {
+    const char* what;
+    void (*edit)(RigCalibration&);
+    const char* message;  // expected in the error
+  };
+  const Case cases[] = {
+      {"fx 1e20", [](RigCalibration& c) { c.camera.fx = 1e20; }, "camera.fx: 1e+20 px is not a focal length"},
+      {"fx 1e100", [](RigCalibration& c) { c.camera.fx = 1e100; }, "camera.fx: 1e+100 px"},
+      {"fx 1e308", [](RigCalibration& c) { c.camera.fx = 1e308; }, "camera.fx: 1e+308 px"},
+      {"fy tiny", [](RigCalibration& c) { c.camera.fy = 1e-3; }, "camera.fy: 0.001 px"},
+      {"cx far", [](RigCalibration& c) { c.camera.cx = 1e9; }, "camera.cx: 1e+09 lies far outside"},
+      {"k1", [](RigCalibration& c) { c.camera.distortion.k1 = 1e12; }, "camera.distortion.k1: 1e+12 is out of range"},
+      {"p2", [](RigCalibration& c) { c.camera.distortion.p2 = -5; }, "camera.distortion.p2: -5 is out of range"},
+      {"projector fx", [](RigCalibration& c) { c.projectors[1].intrinsics.fx = 1e20; },
+       "projectors.right.intrinsics.fx: 1e+20 px"},
+      {"projector t", [](RigCalibration& c) { c.projectors[0].cam_from_proj.t[2] = 1e300; },
+       "projectors.left.cam_from_proj.t: 1e+300 mm from the camera is out of range"},
+      {"table t", [](RigCalibration& c) { c.turntable.cam_from_table.t[0] = -3e7; },
+       "turntable.cam_from_table.t: 3e+07 mm"},
+      {"radius", [](RigCalibration& c) { c.turntable.platform_radius_mm = 1e200; },
+       "turntable.platform_radius_mm: 1e+200 is out of range"},
+      {"rms", [](RigCalibration& c) { c.camera_reprojection_rms_px = -1; },
+       "camera_reprojection_rms_px: -1 is out of range"},
+  };
+  for (const Case& c : cases) {
+    RigCalibration cal = example();
+    c.edit(cal);
+    auto parsed = parse_calibration(format_calibration(cal), "cal.json");
+    ASSERT_FALSE(parsed.ok()) << c.what;
+    EXPECT_EQ(parsed.error().code, Errc::invalid_argument) << c.what;
+    EXPECT_NE(parsed.error().message.find(std::string("cal.json: ") + c.message), std::string::npos)
+        << c.what << ": " << parsed.error().message;
+    EXPECT_LT(parsed.error().message.size(), 300u) << c.what << ": " << parsed.error().message;
+    EXPECT_FALSE(save_calibration("/nonexistent/never-written.json", cal).ok()) << c.what;
+  }
+  // The bounds leave real lenses alone: a fisheye (f = 0.2 x side, strong distortion), a long
+  // lens (50 x side), the placeholder turntable 100 m away.
+  RigCalibration wide = example();
+  wide.camera.fx = wide.camera.fy = 130;
+  wide.camera.distortion = {-0.9, 0.6, 0.01, -0.01, -0.2};
+  wide.projectors[0].intrinsics.fx = 50 * 1140;
+  wide.turntable.cam_from_table.t = {0, 0, 100000};
+  wide.turntable.platform_radius_mm = 1e6;
+  auto parsed = parse_calibration(format_calibration(wide), "cal.json");
+  EXPECT_TRUE(parsed.ok()) << parsed.error().message;
 }
 
 TEST(Calibration, SaveIsAtomicAndLoadReadsItBack) {

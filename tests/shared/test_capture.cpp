@@ -217,8 +217,8 @@ TEST_F(Capture, FileHeaderChecks) {
     return bytes;
   };
   auto format = good;
-  format[8] = std::byte{2};
-  reject(with_crc(format), Errc::wrong_version, "capture format version 2");
+  format[8] = std::byte{3};
+  reject(with_crc(format), Errc::wrong_version, "capture format version 3");
   auto protocol = good;
   protocol[10] = std::byte{9};
   reject(with_crc(protocol), Errc::wrong_version, "framing version 9");

@@ -9,11 +9,12 @@
 #include <cstring>
 #include <thread>
 
+#include "slproto/file_util.hpp"
 #include "slproto/transport.hpp"
 #include "slscand/app/config.hpp"
 #include "slscand/app/security.hpp"
 #include "slscand/hal/backends.hpp"
-#include "slscand/hal/turntable.hpp"
+#include "slscand/hal/grbl/grbl_turntable.hpp"
 #if defined(SLSCAND_HAVE_SIM)
 #include "slscand/hal/sim/sim_rig.hpp"
 #endif
@@ -113,6 +114,11 @@ void check_camera(Checker& c, const hal::BoardConfig& board, hal::BoardDevices& 
     std::string fix;
     if (contains(e, "built without"))
       fix = "install a slscand built with the '" + board.camera_backend + "' backend, or change [camera] backend";
+    else if (board.camera_backend == "aravis")
+      fix =
+          "the camera must answer GigE Vision discovery (or be on USB3): check its power and cable, put it on the "
+          "board's subnet (or give its IP address in [camera] device), and see docs/hardware.md for MTU and "
+          "socket buffers";
     else if (board.camera_backend == "libcamera")
       fix = permission_fix(e, "video",
                            "`rpicam-hello --list-cameras` (libcamera-hello on older images) must list the camera: "
@@ -129,26 +135,39 @@ void check_camera(Checker& c, const hal::BoardConfig& board, hal::BoardDevices& 
   }
   devices.camera = std::move(*camera);
   c.ok(name, devices.camera->describe());
+  for (const auto& detail : devices.camera->check_details()) c.ok(detail.name, detail.detail);
   std::vector<std::string> problems;
   auto format = devices.camera->set_format(board.camera_format);
   if (!format) problems.push_back("format: " + format.error().message);
   if (auto s = devices.camera->set_exposure_us(board.pattern_exposure_us); !s)
     problems.push_back("exposure: " + s.error().message);
   if (auto s = devices.camera->set_gain(board.gain); !s) problems.push_back("gain: " + s.error().message);
-  if (auto s = devices.camera->set_trigger_mode(hal::TriggerMode::external); !s)
-    problems.push_back("external trigger: " + s.error().message);
+  const hal::TriggerMode trigger = hal::camera_trigger_mode(board);
+  if (auto s = devices.camera->set_trigger_mode(trigger); !s)
+    problems.push_back(std::string(hal::trigger_mode_name(trigger)) + " trigger: " + s.error().message);
   if (problems.empty()) {
-    c.ok("camera controls", std::to_string(format->width) + " x " + std::to_string(format->height) + ", exposure " +
-                                std::to_string(static_cast<long>(board.pattern_exposure_us)) +
-                                " us, gain, external trigger");
+    std::string trigger_text = hal::trigger_mode_name(trigger) + std::string(" trigger");
+    if (board.camera_backend == "aravis" && trigger == hal::TriggerMode::external)
+      trigger_text += " on " + board.camera_trigger_input + " (" + board.camera_trigger_activation + ")";
+    c.ok("camera controls", std::to_string(format->width) + " x " + std::to_string(format->height) + " " +
+                                hal::pixel_format_name(format->pixel_format) + ", exposure " +
+                                std::to_string(static_cast<long>(board.pattern_exposure_us)) + " us, gain, " +
+                                trigger_text);
     devices.camera_format = *format;
   } else {
     std::string detail;
     for (const auto& p : problems) detail += (detail.empty() ? "" : "; ") + p;
-    c.missing("camera controls", detail,
-              "the camera does not take the board file's settings: compare [camera] width, height, pixel_format "
-              "with `v4l2-ctl -d DEVICE --list-formats-ext --list-ctrls`; external trigger needs the sensor's "
-              "trigger mode (docs/hardware.md)");
+    if (board.camera_backend == "aravis") {
+      c.missing("camera controls", detail,
+                "the camera does not take the board file's settings: compare [camera] width, height, offset_x, "
+                "offset_y and pixel_format with the \"camera features\" line above, and trigger_input with its "
+                "trigger sources (docs/hardware.md, GigE Vision cameras)");
+    } else {
+      c.missing("camera controls", detail,
+                "the camera does not take the board file's settings: compare [camera] width, height, pixel_format "
+                "with `v4l2-ctl -d DEVICE --list-formats-ext --list-ctrls`; external trigger needs the sensor's "
+                "trigger mode (docs/hardware.md)");
+    }
   }
 }
 
@@ -218,7 +237,7 @@ void check_realtime(Checker& c, const hal::BoardConfig& board, const CheckOption
   if (fifo_error == 0)
     c.ok("real-time scheduling", fifo + " granted");
   else
-    c.missing("real-time scheduling", fifo + ": " + std::strerror(fifo_error),
+    c.missing("real-time scheduling", fifo + ": " + slproto::errno_text(fifo_error),
               "run slscand as the packaged service (AmbientCapabilities=CAP_SYS_NICE, LimitRTPRIO=99 in "
               "slscand.service), or for a manual run give the user an rtprio limit in "
               "/etc/security/limits.d/ (e.g. `slscand - rtprio 99`); or set [realtime] enabled = false");
@@ -226,7 +245,7 @@ void check_realtime(Checker& c, const hal::BoardConfig& board, const CheckOption
     ::munlockall();
     c.ok("memory locking", "mlockall granted");
   } else {
-    c.missing("memory locking", std::string("mlockall: ") + std::strerror(errno),
+    c.missing("memory locking", "mlockall: " + slproto::errno_text(errno),
               "the packaged service grants it (AmbientCapabilities=CAP_IPC_LOCK, LimitMEMLOCK=infinity); by hand: "
               "`ulimit -l unlimited` or a memlock line in /etc/security/limits.d/");
   }
@@ -236,7 +255,7 @@ void check_realtime(Checker& c, const hal::BoardConfig& board, const CheckOption
       c.ok("cpu pinning", "cpu " + std::to_string(board.cpu) + " of " + std::to_string(cpus));
     else
       c.missing("cpu pinning",
-                "cpu " + std::to_string(board.cpu) + ": " + std::strerror(pin_error) + " (this machine has " +
+                "cpu " + std::to_string(board.cpu) + ": " + slproto::errno_text(pin_error) + " (this machine has " +
                     std::to_string(cpus) + " online cpus)",
                 "set [realtime] cpu in " + board.source_path + " to an online cpu (0.." + std::to_string(cpus - 1) +
                     ") or -1 for no pinning");

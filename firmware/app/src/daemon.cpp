@@ -1,5 +1,6 @@
 #include "slscand/app/daemon.hpp"
 
+#include <algorithm>
 #include <cstdio>
 #include <optional>
 #include <thread>
@@ -100,11 +101,21 @@ void Daemon::serve() {
   // hold up the accept loop, the scanning host, or a status question. The scanner itself is
   // claimed only by a host that has passed the handshake, so a silent connection cannot make
   // the daemon refuse the real host (docs/security.md).
+  // A connection's place: while it is in its hello it can be dropped for a newcomer.
+  struct Slot {
+    std::mutex mutex;
+    slproto::Connection* connection = nullptr;  // set while in the hello
+    bool in_hello = true;
+    bool served = false;  // past its hello: counts against max_connections
+  };
   struct Worker {
     std::thread thread;
     std::shared_ptr<std::atomic<bool>> finished;
+    std::shared_ptr<Slot> slot;
+    std::uint64_t order = 0;  // accept order: the oldest hello is dropped first
   };
   std::vector<Worker> workers;
+  std::uint64_t accepted = 0;
   auto reap = [&workers](bool all) {
     for (auto it = workers.begin(); it != workers.end();) {
       if (all || it->finished->load()) {
@@ -123,9 +134,31 @@ void Daemon::serve() {
       std::lock_guard lock(stats_mutex_);
       stats_.connections++;
     }
-    if (workers.size() >= options_.max_connections) {
-      const std::string why = "busy: slscand already serves " + std::to_string(workers.size()) +
-                              " connections (the limit); try again later";
+    std::size_t served = 0;
+    std::vector<Worker*> in_hello;
+    for (auto& worker : workers) {
+      std::lock_guard lock(worker.slot->mutex);
+      if (worker.slot->in_hello)
+        in_hello.push_back(&worker);
+      else if (worker.slot->served)
+        ++served;
+    }
+    if (in_hello.size() >= options_.max_handshakes) {
+      // Make room: the hello that has waited longest goes (its handshake fails at once).
+      Worker* oldest = *std::min_element(in_hello.begin(), in_hello.end(),
+                                         [](const Worker* a, const Worker* b) { return a->order < b->order; });
+      std::lock_guard lock(oldest->slot->mutex);
+      if (oldest->slot->in_hello && oldest->slot->connection != nullptr) {
+        std::fprintf(stderr, "slscand: dropped %s: still in its hello while %zu newer connections wait\n",
+                     oldest->slot->connection->peer_address().c_str(), in_hello.size());
+        oldest->slot->connection->interrupt();
+        oldest->slot->in_hello = false;
+        oldest->slot->connection = nullptr;
+      }
+    }
+    if (served >= options_.max_connections) {
+      const std::string why =
+          "busy: slscand already serves " + std::to_string(served) + " connections (the limit); try again later";
       std::fprintf(stderr, "slscand: turned away %s: %s\n", connection->peer_address().c_str(), why.c_str());
       (void)connection->send(slproto::to_proto(make_error(Errc::busy, why), 0, /*fatal=*/true), 200ms);
       connection->close();
@@ -134,12 +167,26 @@ void Daemon::serve() {
       continue;
     }
     auto finished = std::make_shared<std::atomic<bool>>(false);
-    std::thread thread([this, finished, c = std::move(*connection)]() mutable {
-      serve_connection(c);
-      c.close();
+    auto slot = std::make_shared<Slot>();
+    auto owned = std::make_shared<slproto::Connection>(std::move(*connection));
+    slot->connection = owned.get();
+    std::thread thread([this, finished, slot, owned]() mutable {
+      serve_connection(*owned, [&slot](bool passed) {
+        std::lock_guard lock(slot->mutex);
+        slot->in_hello = false;
+        slot->served = passed;
+        slot->connection = nullptr;
+      });
+      {
+        std::lock_guard lock(slot->mutex);  // not dropped while it closes
+        slot->in_hello = false;
+        slot->served = false;
+        slot->connection = nullptr;
+      }
+      owned->close();
       *finished = true;
     });
-    workers.push_back(Worker{std::move(thread), std::move(finished)});
+    workers.push_back(Worker{std::move(thread), std::move(finished), std::move(slot), accepted++});
   }
   reap(true);
 }
@@ -165,8 +212,9 @@ void Daemon::release_scanner() {
   primary_active_ = false;
 }
 
-void Daemon::serve_connection(slproto::Connection& connection) {
+void Daemon::serve_connection(slproto::Connection& connection, const std::function<void(bool passed)>& hello_done) {
   const std::uint32_t negotiated = handshake(connection);
+  hello_done(negotiated != 0);
   if (negotiated == 0) return;
   const std::string peer = connection.peer_address();
   if (!try_claim_scanner(0ms, peer)) {
@@ -452,6 +500,16 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
                static_cast<unsigned long long>(plan->scan_id), state_name(outcome.state),
                static_cast<unsigned long long>(frames_sent), static_cast<unsigned long long>(plan->frames_total()),
                outcome.state == pb::SCAN_STATE_DONE ? "" : ": ", outcome.error.message.c_str());
+  const hal::CameraLinkStats& link = outcome.camera_link;
+  if (link.frames_completed + link.frames_failed + link.packets_missing + link.packets_resent > 0) {
+    std::fprintf(
+        stderr,
+        "slscand: camera link: %llu frames received, %llu lost, %llu underruns; packets %llu missing, %llu "
+        "resent (%llu resend requests)\n",
+        static_cast<unsigned long long>(link.frames_completed), static_cast<unsigned long long>(link.frames_failed),
+        static_cast<unsigned long long>(link.underruns), static_cast<unsigned long long>(link.packets_missing),
+        static_cast<unsigned long long>(link.packets_resent), static_cast<unsigned long long>(link.resend_requests));
+  }
   write_timing_log(*plan, outcome, sent_events);
   if (connection_lost) return false;
 
@@ -466,6 +524,10 @@ bool Daemon::run_scan(slproto::Connection& connection, const pb::ScanRequest& re
   done.set_duration_ns(static_cast<std::uint64_t>(outcome.duration_ns));
   done.set_frames_dropped(0);  // never: back-pressure pauses the sequencer instead
   done.set_text(outcome.state == pb::SCAN_STATE_DONE ? "scan complete" : outcome.error.message);
+  done.set_camera_frames_lost(outcome.camera_link.frames_failed + outcome.camera_link.underruns);
+  done.set_camera_packets_missing(outcome.camera_link.packets_missing);
+  done.set_camera_packets_resent(outcome.camera_link.packets_resent);
+  done.set_camera_resend_requests(outcome.camera_link.resend_requests);
   add_timing_stats(report, done);
   return connection.send(done).ok();
 }

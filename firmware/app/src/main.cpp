@@ -4,7 +4,7 @@
 //   slscand --config /etc/slscan/slscand.toml [options above override it]
 //   slscand --config FILE | --board FILE --check
 //   slscand --board boards/sim.toml --timing-report [--views N] [--exposure-us E] [--period-us P]
-//   slscand --list-backends
+//   slscand --list-backends | --version
 // Exit codes: 0 ok, 1 runtime failure, 2 bad command line or board file.
 #include <unistd.h>
 
@@ -41,7 +41,7 @@ void usage(std::FILE* out) {
       "       slscand --config FILE [the options above override the file's]\n"
       "       slscand (--config FILE | --board FILE) --check\n"
       "       slscand --board FILE --timing-report [--views N] [--exposure-us E] [--period-us P]\n"
-      "       slscand --list-backends\n"
+      "       slscand --list-backends | --version | --help\n"
       "Serves scans to one host at a time over slproto (TCP). --timing-report runs one scan on the\n"
       "board locally (use the sim board for a machine without hardware) and prints its timing.\n"
       "It listens on loopback unless --bind or the board file's bind_address say otherwise; any\n"
@@ -164,6 +164,10 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "slscand: %s: '%s' is not an integer in range\n", arg.c_str(), text);
         return 2;
       }
+    } else if (arg == "--version") {
+      std::printf("%s (slproto %u..%u)\n", slscand::software_version(), unsigned{slproto::min_protocol_version},
+                  unsigned{slproto::protocol_version});
+      return 0;
     } else if (arg == "--help" || arg == "-h") {
       usage(stdout);
       return 0;

@@ -6,11 +6,13 @@
 #include <cerrno>
 #include <cstring>
 
+#include "slproto/file_util.hpp"
 #include "slscand/hal/gpiod/gpiod_chip.hpp"
 
 namespace slscand::hal {
 
 using slproto::Errc;
+using slproto::errno_text;
 using slproto::make_error;
 
 GpiodV1LineRequest gpiod_v1_request_for(const LineSettings& line) {
@@ -38,8 +40,6 @@ GpiodV1LineRequest gpiod_v1_request_for(const LineSettings& line) {
 }
 
 namespace {
-
-std::string errno_text() { return std::strerror(errno); }
 
 struct ChipHandle {
   gpiod_chip* chip = nullptr;
@@ -70,7 +70,7 @@ class GpiodV1Request final : public LineRequest {
     gpiod_line_request_config request_config{config_.consumer.c_str(), how.request_type, how.flags};
     if (gpiod_line_request(line, &request_config, settings.initial_value ? 1 : 0) != 0) {
       return make_error(Errc::io_error, chip_->name + ": cannot request " + settings.name + " (line " +
-                                            std::to_string(settings.offset) + "): " + errno_text());
+                                            std::to_string(settings.offset) + "): " + errno_text(errno));
     }
     lines_.push_back(line);
     offsets_.push_back(settings.offset);
@@ -85,7 +85,8 @@ class GpiodV1Request final : public LineRequest {
                                                     " is not an output of request '" + config_.consumer + "'");
     }
     if (gpiod_line_set_value(line, value ? 1 : 0) != 0) {
-      return make_error(Errc::io_error, chip_->name + ": setting line " + std::to_string(offset) + ": " + errno_text());
+      return make_error(Errc::io_error,
+                        chip_->name + ": setting line " + std::to_string(offset) + ": " + errno_text(errno));
     }
     return slproto::Ok{};
   }
@@ -97,7 +98,8 @@ class GpiodV1Request final : public LineRequest {
     }
     const int value = gpiod_line_get_value(line);
     if (value < 0) {
-      return make_error(Errc::io_error, chip_->name + ": reading line " + std::to_string(offset) + ": " + errno_text());
+      return make_error(Errc::io_error,
+                        chip_->name + ": reading line " + std::to_string(offset) + ": " + errno_text(errno));
     }
     return value == 1;
   }
@@ -118,13 +120,13 @@ class GpiodV1Request final : public LineRequest {
     timeout.tv_sec = static_cast<time_t>(t / kSecond);
     timeout.tv_nsec = static_cast<long>(t % kSecond);
     const int rv = gpiod_line_event_wait_bulk(&bulk, &timeout, &ready);
-    if (rv < 0) return make_error(Errc::io_error, chip_->name + ": waiting for GPIO edges: " + errno_text());
+    if (rv < 0) return make_error(Errc::io_error, chip_->name + ": waiting for GPIO edges: " + errno_text(errno));
     if (rv == 0) return out;
     for (unsigned i = 0; i < gpiod_line_bulk_num_lines(&ready); ++i) {
       gpiod_line* line = gpiod_line_bulk_get_line(&ready, i);
       gpiod_line_event events[16];
       const int n = gpiod_line_event_read_multiple(line, events, 16);
-      if (n < 0) return make_error(Errc::io_error, chip_->name + ": reading GPIO edges: " + errno_text());
+      if (n < 0) return make_error(Errc::io_error, chip_->name + ": reading GPIO edges: " + errno_text(errno));
       for (int k = 0; k < n; ++k) {
         EdgeEvent event;
         event.offset = gpiod_line_offset(line);
@@ -183,12 +185,12 @@ Result<std::unique_ptr<GpioChip>> open_gpiod_chip(const std::string& chip) {
   if (!spec.path.empty()) {
     handle->chip = gpiod_chip_open(spec.path.c_str());
     if (handle->chip == nullptr) {
-      return make_error(Errc::io_error, "cannot open GPIO chip " + spec.path + ": " + errno_text());
+      return make_error(Errc::io_error, "cannot open GPIO chip " + spec.path + ": " + errno_text(errno));
     }
   } else if (!spec.label.empty()) {
     handle->chip = gpiod_chip_open_by_label(spec.label.c_str());
     if (handle->chip == nullptr) {
-      return make_error(Errc::io_error, "no GPIO chip labelled '" + spec.label + "' (" + errno_text() + ")");
+      return make_error(Errc::io_error, "no GPIO chip labelled '" + spec.label + "' (" + errno_text(errno) + ")");
     }
   } else {
     return make_error(Errc::invalid_argument, "empty GPIO chip name");

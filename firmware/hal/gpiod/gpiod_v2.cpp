@@ -8,18 +8,18 @@
 #include <cstring>
 #include <filesystem>
 
+#include "slproto/file_util.hpp"
 #include "slscand/hal/gpiod/gpiod_chip.hpp"
 
 namespace slscand::hal {
 
 using slproto::Errc;
+using slproto::errno_text;
 using slproto::make_error;
 
 void GpiodLineConfigDeleter::operator()(gpiod_line_config* config) const noexcept { gpiod_line_config_free(config); }
 
 namespace {
-
-std::string errno_text() { return std::strerror(errno); }
 
 struct SettingsDeleter {
   void operator()(gpiod_line_settings* s) const noexcept { gpiod_line_settings_free(s); }
@@ -76,7 +76,8 @@ class GpiodV2Request final : public LineRequest {
     }
     if (gpiod_line_request_set_value(request_, offset, value ? GPIOD_LINE_VALUE_ACTIVE : GPIOD_LINE_VALUE_INACTIVE) !=
         0) {
-      return make_error(Errc::io_error, chip_->name + ": setting line " + std::to_string(offset) + ": " + errno_text());
+      return make_error(Errc::io_error,
+                        chip_->name + ": setting line " + std::to_string(offset) + ": " + errno_text(errno));
     }
     return slproto::Ok{};
   }
@@ -87,7 +88,8 @@ class GpiodV2Request final : public LineRequest {
     }
     const gpiod_line_value value = gpiod_line_request_get_value(request_, offset);
     if (value == GPIOD_LINE_VALUE_ERROR) {
-      return make_error(Errc::io_error, chip_->name + ": reading line " + std::to_string(offset) + ": " + errno_text());
+      return make_error(Errc::io_error,
+                        chip_->name + ": reading line " + std::to_string(offset) + ": " + errno_text(errno));
     }
     return value == GPIOD_LINE_VALUE_ACTIVE;
   }
@@ -96,10 +98,10 @@ class GpiodV2Request final : public LineRequest {
     std::vector<EdgeEvent> out;
     if (!buffer_) return make_error(Errc::io_error, chip_->name + ": cannot allocate an edge event buffer");
     const int rv = gpiod_line_request_wait_edge_events(request_, std::max<Nanos>(timeout_ns, 0));
-    if (rv < 0) return make_error(Errc::io_error, chip_->name + ": waiting for GPIO edges: " + errno_text());
+    if (rv < 0) return make_error(Errc::io_error, chip_->name + ": waiting for GPIO edges: " + errno_text(errno));
     if (rv == 0) return out;
     const int n = gpiod_line_request_read_edge_events(request_, buffer_.get(), 64);
-    if (n < 0) return make_error(Errc::io_error, chip_->name + ": reading GPIO edges: " + errno_text());
+    if (n < 0) return make_error(Errc::io_error, chip_->name + ": reading GPIO edges: " + errno_text(errno));
     for (int i = 0; i < n; ++i) {
       gpiod_edge_event* e = gpiod_edge_event_buffer_get_event(buffer_.get(), static_cast<unsigned long>(i));
       EdgeEvent event;
@@ -144,7 +146,7 @@ class GpiodV2Chip final : public GpioChip {
     gpiod_line_request* request = gpiod_chip_request_lines(chip_->chip, request_config.get(), line_config->get());
     if (request == nullptr) {
       return make_error(Errc::io_error,
-                        chip_->name + ": cannot request the lines of '" + config.consumer + "': " + errno_text());
+                        chip_->name + ": cannot request the lines of '" + config.consumer + "': " + errno_text(errno));
     }
     return std::unique_ptr<LineRequest>(new GpiodV2Request(chip_, config, request));
   }
@@ -182,7 +184,7 @@ Result<GpiodLineConfigPtr> gpiod_v2_line_config(const LineRequestConfig& config)
     const unsigned offset = line.offset;
     if (rv != 0 || gpiod_line_config_add_line_settings(line_config.get(), &offset, 1, settings.get()) != 0) {
       return make_error(Errc::invalid_argument, "libgpiod rejected the settings of " + line.name + " (line " +
-                                                    std::to_string(line.offset) + "): " + errno_text());
+                                                    std::to_string(line.offset) + "): " + errno_text(errno));
     }
   }
   return line_config;
@@ -194,7 +196,7 @@ Result<std::unique_ptr<GpioChip>> open_gpiod_chip(const std::string& chip) {
   if (!spec.path.empty()) {
     handle->chip = gpiod_chip_open(spec.path.c_str());
     if (handle->chip == nullptr) {
-      return make_error(Errc::io_error, "cannot open GPIO chip " + spec.path + ": " + errno_text());
+      return make_error(Errc::io_error, "cannot open GPIO chip " + spec.path + ": " + errno_text(errno));
     }
   } else if (!spec.label.empty()) {
     // v2 has no open-by-label: look at every chip's label.
@@ -215,7 +217,7 @@ Result<std::unique_ptr<GpioChip>> open_gpiod_chip(const std::string& chip) {
     return make_error(Errc::invalid_argument, "empty GPIO chip name");
   }
   std::unique_ptr<gpiod_chip_info, ChipInfoDeleter> info(gpiod_chip_get_info(handle->chip));
-  if (!info) return make_error(Errc::io_error, "cannot read GPIO chip info: " + errno_text());
+  if (!info) return make_error(Errc::io_error, "cannot read GPIO chip info: " + errno_text(errno));
   handle->name = std::string(gpiod_chip_info_get_name(info.get())) + " [" + gpiod_chip_info_get_label(info.get()) + "]";
   handle->lines = static_cast<unsigned>(gpiod_chip_info_get_num_lines(info.get()));
   return std::unique_ptr<GpioChip>(new GpiodV2Chip(std::move(handle)));

@@ -105,7 +105,10 @@ class LibcameraCamera final : public Camera {
     settings_.gain = gain;
     return check_settings();
   }
-  Status set_trigger_mode(TriggerMode /*mode*/) override {
+  Status set_trigger_mode(TriggerMode mode) override {
+    if (mode == TriggerMode::software) {
+      return slproto::make_error(slproto::Errc::unsupported, "libcamera has no software trigger");
+    }
     // libcamera 0.3 has no trigger control: an external trigger is a sensor driver setting
     // (e.g. imx296's trigger_mode module parameter, docs/hardware.md).
     return slproto::Ok{};

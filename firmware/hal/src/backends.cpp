@@ -1,5 +1,7 @@
 #include "slscand/hal/backends.hpp"
 
+#include "slscand/hal/grbl/grbl_turntable.hpp"
+
 #if defined(SLSCAND_HAVE_GPIOD)
 #include "slscand/hal/gpiod/gpiod_chip.hpp"
 #endif
@@ -8,6 +10,9 @@
 #endif
 #if defined(SLSCAND_HAVE_LIBCAMERA)
 #include "slscand/hal/libcamera/libcamera_camera.hpp"
+#endif
+#if defined(SLSCAND_HAVE_ARAVIS)
+#include "slscand/hal/aravis/aravis_camera.hpp"
 #endif
 #if defined(SLSCAND_HAVE_SIM)
 #include "slscand/hal/sim/sim_rig.hpp"
@@ -56,6 +61,19 @@ Result<std::unique_ptr<Camera>> open_camera(const BoardConfig& board, BoardDevic
     return open_libcamera_camera(board.camera_device);
 #endif
   }
+  if (board.camera_backend == "aravis") {
+#if defined(SLSCAND_HAVE_ARAVIS)
+    AravisOptions options;
+    options.device = board.camera_device;
+    options.offset_x = board.camera_offset_x;
+    options.offset_y = board.camera_offset_y;
+    options.trigger_input = board.camera_trigger_input;
+    options.trigger_activation = board.camera_trigger_activation;
+    options.packet_size = board.camera_packet_size;
+    options.buffers = board.camera_buffers;
+    return open_aravis_camera(options);
+#endif
+  }
   (void)devices;
   return not_built("camera.backend", board.camera_backend);
 }
@@ -80,6 +98,10 @@ Result<std::unique_ptr<SerialPort>> open_serial(const BoardConfig& board, BoardD
 
 }  // namespace
 
+TriggerMode camera_trigger_mode(const BoardConfig& board) {
+  return board.trigger_source == CameraTriggerSource::software ? TriggerMode::software : TriggerMode::external;
+}
+
 Result<std::unique_ptr<GpioChip>> open_board_gpio_chip(const BoardConfig& board, BoardDevices& devices) {
   return open_chip(board, devices);
 }
@@ -102,6 +124,9 @@ std::string available_backends() {
 #endif
 #if defined(SLSCAND_HAVE_LIBCAMERA)
   camera += " libcamera";
+#endif
+#if defined(SLSCAND_HAVE_ARAVIS)
+  camera += " aravis";
 #endif
 #if defined(SLSCAND_HAVE_LIBSERIALPORT)
   serial += " libserialport";
@@ -172,7 +197,7 @@ slproto::Result<BoardDevices> open_board_devices(const BoardConfig& board, const
   devices.camera_format = *format;
   if (auto s = devices.camera->set_exposure_us(board.pattern_exposure_us); !s) return s.error();
   if (auto s = devices.camera->set_gain(board.gain); !s) return s.error();
-  if (auto s = devices.camera->set_trigger_mode(TriggerMode::external); !s) return s.error();
+  if (auto s = devices.camera->set_trigger_mode(camera_trigger_mode(board)); !s) return s.error();
 
   auto port = open_serial(board, devices);
   if (!port) return std::move(port).error();

@@ -180,8 +180,10 @@ slproto::Status BoardConfig::check() const {
 
   if (gpio_backend != "gpiod" && gpio_backend != "sim")
     return fail("gpio.backend must be \"gpiod\" or \"sim\", not \"" + gpio_backend + "\"");
-  if (camera_backend != "v4l2" && camera_backend != "libcamera" && camera_backend != "sim") {
-    return fail("camera.backend must be \"v4l2\", \"libcamera\" or \"sim\", not \"" + camera_backend + "\"");
+  if (camera_backend != "v4l2" && camera_backend != "libcamera" && camera_backend != "aravis" &&
+      camera_backend != "sim") {
+    return fail("camera.backend must be \"v4l2\", \"libcamera\", \"aravis\" or \"sim\", not \"" + camera_backend +
+                "\"");
   }
   if (turntable_backend != "grbl") return fail("turntable.backend must be \"grbl\", not \"" + turntable_backend + "\"");
   if (serial_backend != "termios" && serial_backend != "libserialport" && serial_backend != "emulator") {
@@ -193,10 +195,34 @@ slproto::Status BoardConfig::check() const {
   if (camera_device.empty()) return fail("camera.device must not be empty (\"auto\" takes the first camera)");
   if (serial_port.empty()) return fail("turntable.port must name a serial port (a path or usb:VID:PID)");
   const bool sim_gpio = gpio_backend == "sim";
-  if (sim_gpio != (camera_backend == "sim") || sim_gpio != (serial_backend == "emulator")) {
+  // The virtual camera obeys the virtual GPIO lines and renders at the emulated table's angle. A
+  // real GenICam camera may join the virtual projectors and table on the bench (the fake GigE
+  // Vision camera in the tests), triggered in software: no virtual line reaches its input.
+  const bool bench_camera = sim_gpio && camera_backend == "aravis" && trigger_source == CameraTriggerSource::software;
+  if ((sim_gpio != (camera_backend == "sim") && !bench_camera) || sim_gpio != (serial_backend == "emulator")) {
     return fail(
         "gpio.backend = \"sim\", camera.backend = \"sim\" and turntable.serial = \"emulator\" go together "
-        "(the virtual camera obeys the virtual GPIO lines and renders at the emulated table's angle)");
+        "(the virtual camera obeys the virtual GPIO lines and renders at the emulated table's angle; an "
+        "\"aravis\" camera may replace it with camera.trigger = \"software\")");
+  }
+  if (trigger_source == CameraTriggerSource::software && camera_backend != "aravis") {
+    return fail(
+        "camera.trigger = \"software\" needs camera.backend = \"aravis\" (the only backend with a "
+        "software trigger)");
+  }
+  if (camera_backend == "aravis") {
+    if (camera_trigger_input.empty()) return fail("camera.trigger_input must name the camera's input (e.g. Line0)");
+    if (camera_trigger_activation != "RisingEdge" && camera_trigger_activation != "FallingEdge") {
+      return fail("camera.trigger_activation must be \"RisingEdge\" or \"FallingEdge\", not \"" +
+                  camera_trigger_activation + "\"");
+    }
+    if (camera_offset_x < 0 || camera_offset_y < 0)
+      return fail("camera.offset_x and camera.offset_y must not be negative");
+    if (camera_packet_size != 0 && (camera_packet_size < 576 || camera_packet_size > 16384)) {
+      return fail("camera.packet_size must be 0 (negotiate) or 576..16384 bytes, not " +
+                  std::to_string(camera_packet_size));
+    }
+    if (camera_buffers < 2 || camera_buffers > 64) return fail("camera.buffers must be in 2..64");
   }
 
   // Every line has one function.
@@ -273,8 +299,9 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.only_keys("projector", {"left", "right"});
   r.only_keys("projector.left", {"trig_in_1", "trig_in_2", "trig_out_1"});
   r.only_keys("projector.right", {"trig_in_1", "trig_in_2", "trig_out_1"});
-  r.only_keys("camera", {"backend", "device", "width", "height", "pixel_format", "gain", "trigger", "trigger_line",
-                         "readout_us"});
+  r.only_keys("camera",
+              {"backend", "device", "width", "height", "pixel_format", "gain", "trigger", "trigger_line", "readout_us",
+               "trigger_input", "trigger_activation", "offset_x", "offset_y", "packet_size", "buffers"});
   r.only_keys("timing", {"pattern_exposure_us", "pattern_period_us", "settle_ms", "ack_timeout_ms", "frame_timeout_ms",
                          "move_timeout_s"});
   r.only_keys("turntable", {"backend", "serial", "port", "baud", "feed_deg_per_min", "angle_tolerance_deg"});
@@ -321,8 +348,10 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
       b.trigger_source = CameraTriggerSource::projector;
     else if (trigger == "gpio")
       b.trigger_source = CameraTriggerSource::gpio;
+    else if (trigger == "software")
+      b.trigger_source = CameraTriggerSource::software;
     else
-      r.fail("field 'camera.trigger' must be \"projector\" or \"gpio\", not \"" + trigger + "\"");
+      r.fail("field 'camera.trigger' must be \"projector\", \"gpio\" or \"software\", not \"" + trigger + "\"");
   }
   if (r.node("camera.trigger_line") != nullptr) {
     unsigned line = 0;
@@ -330,6 +359,19 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
     b.camera_trigger_line = line;
   }
   r.optional("camera.readout_us", b.readout_us);
+  const bool genicam = b.camera_backend == "aravis";
+  for (const char* key : {"camera.trigger_input", "camera.trigger_activation", "camera.offset_x", "camera.offset_y",
+                          "camera.packet_size", "camera.buffers"}) {
+    if (!genicam && r.node(key) != nullptr) {
+      r.fail(std::string("field '") + key + "' applies to camera.backend = \"aravis\" only");
+    }
+  }
+  r.optional("camera.trigger_input", b.camera_trigger_input);
+  r.optional("camera.trigger_activation", b.camera_trigger_activation);
+  r.optional("camera.offset_x", b.camera_offset_x);
+  r.optional("camera.offset_y", b.camera_offset_y);
+  r.optional("camera.packet_size", b.camera_packet_size);
+  r.optional("camera.buffers", b.camera_buffers);
   r.required("timing.pattern_exposure_us", b.pattern_exposure_us);
   r.required("timing.pattern_period_us", b.pattern_period_us);
   r.optional("timing.settle_ms", b.settle_ms);

@@ -8,16 +8,16 @@
 #include <cerrno>
 #include <cstring>
 
+#include "slproto/file_util.hpp"
 #include "slscand/hal/serial_port.hpp"
 
 namespace slscand::hal {
 
 using slproto::Errc;
+using slproto::errno_text;
 using slproto::make_error;
 
 namespace {
-
-std::string errno_text(int err) { return std::string(std::strerror(err)); }
 
 int poll_ms(Nanos timeout_ns) {
   if (timeout_ns <= 0) return 0;

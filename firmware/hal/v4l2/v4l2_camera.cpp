@@ -199,6 +199,7 @@ class V4l2Camera final : public Camera {
   }
 
   Status set_trigger_mode(TriggerMode mode) override {
+    if (mode == TriggerMode::software) return make_error(Errc::unsupported, device_ + ": V4L2 has no software trigger");
     if (const V4l2Control* control = v4l2_find_trigger_control(controls_)) {
       return apply({{control->id, mode == TriggerMode::external ? 1 : 0}});
     }

@@ -82,6 +82,8 @@ slproto::Status check_scene(const Scene& scene) {
   if (!finite_non_negative(sensor.dark_level_dn)) return invalid("sensor.dark_level_dn must be >= 0");
   if (!finite_positive(sensor.white_level_dn)) return invalid("sensor.white_level_dn must be > 0");
   if (!finite_positive(sensor.exposure_us)) return invalid("sensor.exposure_us must be > 0");
+  if (!(sensor.blooming >= 0 && sensor.blooming <= 1))
+    return invalid("sensor.blooming must lie in [0, 1] (the share of the charge above full well that spills)");
   if (auto s = scene.pattern_plan.check(); !s) return invalid("pattern_plan: " + s.error().message);
   for (std::size_t i = 0; i < 2; ++i) {
     const ProjectorModel& p = scene.projectors[i];
@@ -107,7 +109,14 @@ slproto::Status check_scene(const Scene& scene) {
   if (!std::isfinite(tt.axis_wobble_deg) || std::abs(tt.axis_wobble_deg) > 10)
     return invalid("turntable.axis_wobble_deg must lie in [-10, 10]");
   if (!finite_non_negative(tt.settle_time_ms)) return invalid("turntable.settle_time_ms must be >= 0");
-  if (!finite_non_negative(scene.ambient)) return invalid("ambient must be >= 0");
+  if (!finite_non_negative(scene.ambient.level)) return invalid("ambient.level must be >= 0");
+  if (!(scene.ambient.flicker_depth >= 0 && scene.ambient.flicker_depth <= 1))
+    return invalid("ambient.flicker_depth must lie in [0, 1]");
+  if (!(scene.ambient.mains_hz >= 10 && scene.ambient.mains_hz <= 1000))
+    return invalid("ambient.mains_hz must lie in [10, 1000] (50 or 60 for mains)");
+  if (!std::isfinite(scene.ambient.phase_deg)) return invalid("ambient.phase_deg is not a finite number");
+  if (scene.interreflection_samples < 1 || scene.interreflection_samples > 4096)
+    return invalid("interreflection_samples must lie in [1, 4096]");
   if (!finite_positive(scene.wall_distance_mm)) return invalid("wall_distance_mm must be > 0");
   if (!(scene.wall_albedo >= 0 && scene.wall_albedo <= 1)) return invalid("wall_albedo must lie in [0, 1]");
   for (std::size_t i = 0; i < scene.view_angles_deg.size(); ++i)

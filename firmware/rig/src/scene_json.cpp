@@ -7,6 +7,7 @@
 #include <set>
 #include <sstream>
 
+#include "slproto/json_fields.hpp"
 #include "slrig/rig.hpp"
 
 namespace slrig {
@@ -170,6 +171,13 @@ SceneObject read_object(const json& node, const std::string& path, const std::st
   if (o.name.empty()) o.name = kind;
   read_pose(r, "pose", o.table_from_object);
   r.boolean("on_turntable", o.on_turntable);
+  std::string material;
+  r.string("material", material);
+  if (!material.empty()) {
+    auto finish = parse_material(material);
+    if (!finish) throw ParseError{r.where("material") + finish.error().message};
+    apply_material(o, *finish);  // explicit albedo / specular fields below override it
+  }
   r.number("albedo", o.albedo);
   r.number("specular", o.specular);
   r.number("specular_power", o.specular_power);
@@ -230,6 +238,7 @@ Scene read_scene(const json& root, const std::string& base_dir) {
     s.number("dark_level_dn", m.dark_level_dn);
     s.number("white_level_dn", m.white_level_dn);
     s.number("exposure_us", m.exposure_us);
+    s.number("blooming", m.blooming);
     double seed = static_cast<double>(m.seed);
     s.number("seed", seed);
     if (seed < 0 || seed > 9007199254740992.0 || seed != std::floor(seed))
@@ -274,7 +283,21 @@ Scene read_scene(const json& root, const std::string& base_dir) {
     for (std::size_t i = 0; i < v->size(); ++i)
       scene.objects.push_back(read_object((*v)[i], "objects[" + std::to_string(i) + "]", base_dir));
   }
-  r.number("ambient", scene.ambient);
+  if (const json* v = r.get("ambient")) {
+    if (v->is_number()) {
+      scene.ambient.level = v->get<double>();  // the older form: the level alone
+      if (!std::isfinite(scene.ambient.level)) throw ParseError{"ambient: not a finite number"};
+    } else {
+      Reader a(*v, "ambient");
+      a.number("level", scene.ambient.level);
+      a.number("flicker_depth", scene.ambient.flicker_depth);
+      a.number("mains_hz", scene.ambient.mains_hz);
+      a.number("phase_deg", scene.ambient.phase_deg);
+      a.finish();
+    }
+  }
+  r.boolean("interreflection", scene.interreflection);
+  r.integer("interreflection_samples", scene.interreflection_samples);
   r.boolean("background_wall", scene.background_wall);
   r.number("wall_distance_mm", scene.wall_distance_mm);
   r.number("wall_albedo", scene.wall_albedo);
@@ -334,9 +357,9 @@ slproto::Result<Scene> parse_scene(std::string_view json_text, std::string_view 
       base_dir = origin_str.substr(0, slash);
     json root;
     try {
-      root = json::parse(json_text);
-    } catch (const json::exception& e) {  // parse_error, and out_of_range for a number beyond double
-      return slproto::make_error(Errc::malformed, origin_str + ": not valid JSON (" + e.what() + ")");
+      root = slproto::parse_json_strict(json_text);
+    } catch (const slproto::JsonFieldError& e) {  // syntax, duplicate keys, numbers beyond double
+      return slproto::make_error(Errc::malformed, origin_str + ": " + e.what());
     }
     Scene scene;
     try {
@@ -372,6 +395,7 @@ std::string format_scene(const Scene& scene) {
                     {"dark_level_dn", s.dark_level_dn},
                     {"white_level_dn", s.white_level_dn},
                     {"exposure_us", s.exposure_us},
+                    {"blooming", s.blooming},
                     {"seed", s.seed},
                     {"noise", s.noise}};
   json projectors = json::array();
@@ -440,7 +464,12 @@ std::string format_scene(const Scene& scene) {
     objects.push_back(j);
   }
   root["objects"] = objects;
-  root["ambient"] = scene.ambient;
+  root["ambient"] = {{"level", scene.ambient.level},
+                     {"flicker_depth", scene.ambient.flicker_depth},
+                     {"mains_hz", scene.ambient.mains_hz},
+                     {"phase_deg", scene.ambient.phase_deg}};
+  root["interreflection"] = scene.interreflection;
+  root["interreflection_samples"] = scene.interreflection_samples;
   root["background_wall"] = scene.background_wall;
   root["wall_distance_mm"] = scene.wall_distance_mm;
   root["wall_albedo"] = scene.wall_albedo;

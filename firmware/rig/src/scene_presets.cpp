@@ -43,6 +43,11 @@ slproto::RigidTransform rotation_z(double deg, V3 t) {
   return transform_from_axes({c, s, 0}, {-s, c, 0}, {0, 0, 1}, t);
 }
 
+slproto::RigidTransform rotation_x(double deg) {
+  const double c = std::cos(deg * kDeg), s = std::sin(deg * kDeg);
+  return transform_from_axes({1, 0, 0}, {0, c, s}, {0, -s, c}, {0, 0, 0});
+}
+
 Scene default_rig(RigSize size) {
   Scene scene;
   // Camera: HS510GC-like 2464 x 2056, 3.45 um pixels, 12 mm lens.
@@ -104,6 +109,72 @@ SceneObject ballbar_object() {
 
 }  // namespace
 
+const char* material_name(Material material) noexcept {
+  switch (material) {
+    case Material::matte:
+      return "matte";
+    case Material::glazed:
+      return "glazed";
+    case Material::polished_metal:
+      return "polished_metal";
+    case Material::brushed_metal:
+      return "brushed_metal";
+    case Material::dark_plastic:
+      return "dark_plastic";
+  }
+  return "matte";
+}
+
+slproto::Result<Material> parse_material(std::string_view name) {
+  for (Material m :
+       {Material::matte, Material::glazed, Material::polished_metal, Material::brushed_metal, Material::dark_plastic})
+    if (name == material_name(m)) return m;
+  return slproto::make_error(slproto::Errc::invalid_argument,
+                             "unknown material '" + std::string(name) +
+                                 "' (known: matte, glazed, polished_metal, brushed_metal, dark_plastic)");
+}
+
+void apply_material(SceneObject& object, Material material) {
+  // Albedo is the diffuse part; specular the Blinn-Phong lobe's peak against a white matte
+  // surface facing the projector; the exponent its width (half the peak at
+  // acos(0.5^(1/power)) between the normal and the half vector: 9 deg at 60, 4.8 deg at 200,
+  // 19 deg at 12).
+  switch (material) {
+    case Material::matte:
+      object.albedo = 0.8;
+      object.specular = 0;
+      object.specular_power = 50;
+      break;
+    case Material::glazed:  // the teacup's glaze
+      object.albedo = 0.85;
+      object.specular = 0.5;
+      object.specular_power = 60;
+      break;
+    case Material::polished_metal:
+      // Mostly mirror: a strong, narrow lobe that clips anything within ~10 deg of the mirror
+      // angle, and a weak diffuse part (surface roughness) that the structured light decodes
+      // elsewhere.
+      object.albedo = 0.25;
+      object.specular = 30;
+      object.specular_power = 200;
+      break;
+    case Material::brushed_metal:
+      // The grooves spread the reflection into a broad lobe (still ten times a white matte
+      // surface at its peak, clipping within ~35 deg of the mirror angle), more diffuse.
+      object.albedo = 0.35;
+      object.specular = 10;
+      object.specular_power = 12;
+      break;
+    case Material::dark_plastic:
+      // Black ABS-like: albedo ~0.05 drowns in the read noise at the reference exposure; a
+      // dielectric's faint, broad highlight.
+      object.albedo = 0.05;
+      object.specular = 0.04;
+      object.specular_power = 30;
+      break;
+  }
+}
+
 std::vector<Vec3> checkerboard_corners(const SceneObject& board) {
   std::vector<Vec3> corners;
   for (int j = 0; j + 1 < board.squares_y; ++j)
@@ -148,6 +219,30 @@ slproto::Result<Scene> scene_preset(std::string_view name, RigSize size) {
     o.albedo = 0.7;
     o.table_from_object = rotation_z(30, {0, 0, 0});
     scene.objects.push_back(o);
+  } else if (name == "shiny_blade") {
+    // The blade in brushed metal, leaning 35 deg, its concave side to the camera at angle 0 (as a blade sits
+    // in a scanning fixture, its root 4 mm above the platform), so its highlights face the
+    // camera in most views: at the reference exposure ~40 % of what a projector lights clips.
+    SceneObject o;
+    o.kind = ObjectKind::blade;
+    o.name = "shiny blade";
+    o.width = 120;
+    o.height = 60;
+    o.twist_deg = 35;
+    apply_material(o, Material::brushed_metal);
+    o.table_from_object = rotation_z(150, {0, 0, 4}) * rotation_x(35);
+    scene.objects.push_back(o);
+  } else if (name == "dark_blade") {
+    // The blade preset's shape and pose in dark plastic.
+    SceneObject o;
+    o.kind = ObjectKind::blade;
+    o.name = "dark blade";
+    o.width = 120;
+    o.height = 60;
+    o.twist_deg = 35;
+    apply_material(o, Material::dark_plastic);
+    o.table_from_object = rotation_z(30, {0, 0, 0});
+    scene.objects.push_back(o);
   } else if (name == "teacup") {
     SceneObject o;
     o.kind = ObjectKind::teacup;
@@ -189,7 +284,8 @@ slproto::Result<Scene> scene_preset(std::string_view name, RigSize size) {
   } else {
     return slproto::make_error(
         slproto::Errc::invalid_argument,
-        "unknown scene preset '" + std::string(name) + "' (known: ballbar, plane, sphere, blade, teacup, calibration)");
+        "unknown scene preset '" + std::string(name) +
+            "' (known: ballbar, plane, sphere, blade, teacup, calibration, shiny_blade, dark_blade)");
   }
   return scene;
 }

@@ -1,17 +1,20 @@
 // slrig-render: renders a virtual-rig scene (a preset or a JSON scene file) to PNG frames plus
 // its ground truth, so a person can look at what the rig sees. Usage: slrig-render --help.
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "png_writer.hpp"
+#include "scene_build.hpp"
 #include "slrig/rig.hpp"
 
 namespace {
@@ -20,10 +23,12 @@ constexpr const char* kUsage = R"(slrig-render: render virtual-rig frames and gr
 
 usage: slrig-render (--preset NAME | --scene FILE) --out DIR [options]
 
-  --preset NAME      ballbar, plane, sphere, blade, teacup or calibration
+  --preset NAME      ballbar, plane, sphere, blade, teacup, calibration, shiny_blade or dark_blade
   --small            the 640 x 512 rig instead of 2464 x 2056 (with --preset)
   --scene FILE       a JSON scene file (docs/virtual-rig.md)
   --out DIR          output directory (created if missing)
+  --nominal FILE     write the scene objects' true surfaces as a binary STL (turntable frame,
+                     mm: the nominal for slscan inspect); --out then optional
   --views LIST       comma-separated view indices into the scene's view angles (default: all)
   --side S           left, right or both (default both)
   --frames LIST      comma-separated pattern indices (default: all 19)
@@ -31,6 +36,8 @@ usage: slrig-render (--preset NAME | --scene FILE) --out DIR [options]
   --seed N           noise seed (default: the scene's)
   --bit-depth N      8, 10 or 12 (10/12-bit frames are written as 16-bit PNG)
   --no-truth         skip the ground-truth files
+  --exposure-us US   camera exposure (default: the scene's reference, sensor.exposure_us)
+  --led-current F    projector LED current, a fraction in (0, 1] (default 1)
 
 Writes DIR/scene.json, DIR/calibration.json and per view DIR/view_K/:
   left_NN_KIND.png, right_NN_KIND.png   the frames (NN = pattern index)
@@ -44,13 +51,24 @@ Exit codes: 0 ok, 1 bad usage or scene, 2 render or write failure.
 )";
 
 struct Options {
-  std::string preset, scene_path, out;
+  std::string preset, scene_path, out, nominal;
   bool small = false, noise = true, truth = true;
   std::vector<int> views, frames;
   int sides = 3;  // bit 0 left, bit 1 right
   long long seed = -1;
   int bit_depth = 0;
+  slrig::Exposure exposure;
 };
+
+bool parse_number(const std::string& text, double& out) {
+  try {
+    std::size_t used = 0;
+    out = std::stod(text, &used);
+    return used == text.size() && std::isfinite(out);
+  } catch (...) {
+    return false;
+  }
+}
 
 bool parse_list(const std::string& text, std::vector<int>& out) {
   std::stringstream ss(text);
@@ -156,6 +174,102 @@ const char* kind_suffix(const slproto::Pattern& p) {
   return "pattern";
 }
 
+// The scene objects' true surfaces as one binary STL in the turntable frame (mm), the nominal
+// for `slscan inspect` (docs/inspection.md): spheres as level-6 icospheres (chord error < 1 um
+// at 25 mm), the blade's and teacup's own meshes, a mesh object's file. Other kinds are refused.
+void icosphere(double r, const slrig::detail::V3& c, std::vector<slrig::detail::Triangle>& out) {
+  using slrig::detail::V3;
+  const double t = (1 + std::sqrt(5.0)) / 2;
+  std::vector<V3> v = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                       {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
+  std::vector<std::array<int, 3>> f = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+                                       {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                                       {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
+                                       {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
+  for (auto& p : v) p = slrig::detail::normalized(p);
+  for (int level = 0; level < 6; ++level) {
+    std::map<std::pair<int, int>, int> mid;
+    auto midpoint = [&](int a, int b) {
+      const auto key = std::minmax(a, b);
+      if (auto it = mid.find(key); it != mid.end()) return it->second;
+      v.push_back(slrig::detail::normalized(v[static_cast<std::size_t>(a)] + v[static_cast<std::size_t>(b)]));
+      return mid[key] = static_cast<int>(v.size() - 1);
+    };
+    std::vector<std::array<int, 3>> next;
+    for (const auto& tri : f) {
+      const int ab = midpoint(tri[0], tri[1]), bc = midpoint(tri[1], tri[2]), ca = midpoint(tri[2], tri[0]);
+      next.push_back({tri[0], ab, ca});
+      next.push_back({tri[1], bc, ab});
+      next.push_back({tri[2], ca, bc});
+      next.push_back({ab, bc, ca});
+    }
+    f = std::move(next);
+  }
+  for (const auto& tri : f)
+    out.push_back({c + r * v[static_cast<std::size_t>(tri[0])], c + r * v[static_cast<std::size_t>(tri[1])],
+                   c + r * v[static_cast<std::size_t>(tri[2])]});
+}
+
+int write_nominal(const Options& opt) {
+  auto scene = !opt.preset.empty()
+                   ? slrig::scene_preset(opt.preset, opt.small ? slrig::RigSize::small : slrig::RigSize::full)
+                   : slrig::load_scene(opt.scene_path);
+  if (!scene) return usage_error(scene.error().message);
+  std::vector<slrig::detail::Triangle> triangles;
+  for (const slrig::SceneObject& o : scene->objects) {
+    std::vector<slrig::detail::Triangle> local;
+    switch (o.kind) {
+      case slrig::ObjectKind::sphere:
+        icosphere(o.radius, {0, 0, 0}, local);
+        break;
+      case slrig::ObjectKind::blade:
+        local = slrig::detail::blade_mesh(o);
+        break;
+      case slrig::ObjectKind::teacup:
+        local = slrig::detail::teacup_mesh(o);
+        break;
+      case slrig::ObjectKind::mesh: {
+        auto loaded = slrig::detail::load_mesh_file(o.mesh_path);
+        if (!loaded) return usage_error(loaded.error().message);
+        for (auto& t : *loaded) t = {o.mesh_scale * t.a, o.mesh_scale * t.b, o.mesh_scale * t.c};
+        local = std::move(*loaded);
+        break;
+      }
+      default:
+        return usage_error("--nominal: object '" + o.name +
+                           "' is not a sphere, blade, teacup or mesh (the kinds with a nominal to write)");
+    }
+    if (!o.on_turntable) return usage_error("--nominal: object '" + o.name + "' is not on the turntable");
+    const slrig::detail::Frame frame(o.table_from_object);
+    for (const auto& t : local) triangles.push_back({frame.apply(t.a), frame.apply(t.b), frame.apply(t.c)});
+  }
+  std::string bytes(80, '\0');
+  const std::string header = "slrig nominal, turntable frame, mm";
+  std::memcpy(bytes.data(), header.data(), header.size());
+  const auto count = static_cast<std::uint32_t>(triangles.size());
+  bytes.append(reinterpret_cast<const char*>(&count), 4);
+  for (const auto& t : triangles) {
+    const slrig::detail::V3 n = slrig::detail::cross(t.b - t.a, t.c - t.a);
+    const double len = slrig::detail::norm(n);
+    const slrig::detail::V3 u = len > 0 ? (1 / len) * n : n;
+    for (const slrig::detail::V3& p : {u, t.a, t.b, t.c})
+      for (int k = 0; k < 3; ++k) {
+        const auto f = static_cast<float>(p[k]);
+        bytes.append(reinterpret_cast<const char*>(&f), 4);
+      }
+    bytes.append(2, '\0');
+  }
+  const std::string tmp = opt.nominal + ".partial";
+  std::FILE* file = std::fopen(tmp.c_str(), "wb");
+  if (file == nullptr || std::fwrite(bytes.data(), 1, bytes.size(), file) != bytes.size() || std::fclose(file) != 0) {
+    std::cerr << "slrig-render: cannot write " << tmp << ": " << std::strerror(errno) << "\n";
+    return 2;
+  }
+  std::filesystem::rename(tmp, opt.nominal);
+  std::cout << "wrote " << opt.nominal << ": " << triangles.size() << " triangles, turntable frame, mm\n";
+  return 0;
+}
+
 int run(const Options& opt) {
   slproto::Result<slrig::Scene> scene = slproto::make_error(slproto::Errc::invalid_argument, "no scene");
   if (!opt.preset.empty())
@@ -214,14 +328,15 @@ int run(const Options& opt) {
       if ((opt.sides & (1 << side)) == 0) continue;
       for (int f : frames) {
         const auto s = static_cast<slproto::ProjectorSide>(side);
-        if (auto st = renderer->try_render(s, plan, static_cast<std::size_t>(f), frame); !st) return fail(st);
+        if (auto st = renderer->try_render(s, plan, static_cast<std::size_t>(f), frame, opt.exposure); !st)
+          return usage_error(st.error().message);
         char name[96];
         std::snprintf(name, sizeof name, "/%s_%02d_%s.png", side == 0 ? "left" : "right", f,
                       kind_suffix(plan[static_cast<std::size_t>(f)]));
         if (auto st = write_png(dir + name, w, h, png_depth, frame); !st) return fail(st);
       }
     }
-    renderer->render_ambient(frame);
+    renderer->render_ambient(frame, opt.exposure);
     if (auto st = write_png(dir + "/ambient.png", w, h, png_depth, frame); !st) return fail(st);
     if (opt.truth) {
       const slrig::ViewGroundTruth& truth = renderer->ground_truth();
@@ -265,6 +380,8 @@ int main(int argc, char** argv) {
       if (!value(opt.scene_path)) return usage_error("--scene needs a file");
     } else if (a == "--out") {
       if (!value(opt.out)) return usage_error("--out needs a directory");
+    } else if (a == "--nominal") {
+      if (!value(opt.nominal)) return usage_error("--nominal needs a file name (.stl)");
     } else if (a == "--small") {
       opt.small = true;
     } else if (a == "--no-noise") {
@@ -294,13 +411,23 @@ int main(int argc, char** argv) {
       std::vector<int> list;
       if (!value(v) || !parse_list(v, list) || list.size() != 1) return usage_error("--bit-depth needs 8, 10 or 12");
       opt.bit_depth = list[0];
+    } else if (a == "--exposure-us") {
+      if (!value(v) || !parse_number(v, opt.exposure.exposure_us) || !(opt.exposure.exposure_us > 0))
+        return usage_error("--exposure-us needs a positive number of microseconds");
+    } else if (a == "--led-current") {
+      if (!value(v) || !parse_number(v, opt.exposure.led_current) || !(opt.exposure.led_current > 0) ||
+          opt.exposure.led_current > 1)
+        return usage_error("--led-current needs a fraction in (0, 1], got '" + v + "'");
     } else {
       return usage_error("unknown argument '" + a + "'");
     }
   }
   if (opt.preset.empty() == opt.scene_path.empty()) return usage_error("give exactly one of --preset or --scene");
-  if (opt.out.empty()) return usage_error("--out is required");
+  if (opt.out.empty() && opt.nominal.empty()) return usage_error("--out (or --nominal) is required");
   try {
+    if (!opt.nominal.empty()) {
+      if (const int code = write_nominal(opt); code != 0 || opt.out.empty()) return code;
+    }
     return run(opt);
   } catch (const std::exception& e) {
     std::cerr << "slrig-render: " << e.what() << "\n";

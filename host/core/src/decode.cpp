@@ -14,6 +14,7 @@
 #include <string>
 
 #include "slscan/core/decode_math.hpp"
+#include "slscan/core/noise_estimate.hpp"
 
 namespace slscan::core {
 
@@ -27,13 +28,15 @@ void DecodeOptions::check() const {
     fail("min_contrast_dn must be a finite value >= 0, got " + std::to_string(min_contrast_dn));
   if (!(min_modulation_dn >= 0) || !std::isfinite(min_modulation_dn))
     fail("min_modulation_dn must be a finite value >= 0, got " + std::to_string(min_modulation_dn));
-  if (saturation_dn < 0 || saturation_dn > (1 << bit_depth) - 1)
-    fail("saturation_dn " + std::to_string(saturation_dn) + " outside [0 (auto), " +
-         std::to_string((1 << bit_depth) - 1) + "]");
+  if (saturation_dn < 0 || saturation_dn > (1 << bit_depth))
+    fail("saturation_dn " + std::to_string(saturation_dn) + " outside [0 (the top code), " +
+         std::to_string(1 << bit_depth) + " (full scale: never clipped)]");
   if (smoothing_radius < 0 || smoothing_radius > 2)
     fail("smoothing_radius " + std::to_string(smoothing_radius) + " outside [0, 2]");
   if (!(smoothing_max_deviation_px > 0) || !std::isfinite(smoothing_max_deviation_px))
     fail("smoothing_max_deviation_px must be positive and finite");
+  if (!(noise_factor >= 0) || !std::isfinite(noise_factor))
+    fail("noise_factor must be a finite value >= 0 (0: the fixed smoothing_max_deviation_px)");
   if (rows_per_task < 1 || rows_per_task > 4096)
     fail("rows_per_task " + std::to_string(rows_per_task) + " outside [1, 4096]");
 }
@@ -58,7 +61,7 @@ ProjectorViewDecoder::ProjectorViewDecoder(const slproto::PatternPlan& plan, int
   }
   for (int n = 0; n < config.phase_steps; ++n) {
     phase_.push_back(plan.index_of(PatternKind::phase_step, n));
-    const double d = 2.0 * std::numbers::pi * n / config.phase_steps;
+    const double d = config.phase_shift_rad(n);  // 2 pi n / N in our own plans
     phase_cos_.push_back(static_cast<float>(std::cos(d)));
     phase_sin_.push_back(static_cast<float>(std::sin(d)));
   }
@@ -66,6 +69,10 @@ ProjectorViewDecoder::ProjectorViewDecoder(const slproto::PatternPlan& plan, int
     throw std::invalid_argument(
         "decoder: the plan has neither white/black frames, inverse Gray frames nor phase steps to threshold the Gray "
         "bits against");
+  code_frames_ = gray_;
+  if (complementary_ >= 0) code_frames_.push_back(complementary_);
+  code_frames_.insert(code_frames_.end(), gray_inverse_.begin(), gray_inverse_.end());
+  if (complementary_inverse_ >= 0) code_frames_.push_back(complementary_inverse_);
   bytes_per_pixel_ = options_.bit_depth > 8 ? 2 : 1;
   store_.resize(plan.size() * static_cast<std::size_t>(width) * static_cast<std::size_t>(height) * bytes_per_pixel_);
   present_.assign(plan.size(), 0);
@@ -162,6 +169,7 @@ struct TileSums {
   alignas(64) float sum[kTileColumns];
   alignas(64) std::uint32_t code[kTileColumns];
   alignas(64) float second_contrast[kTileColumns];  // with inverse Gray frames only
+  alignas(64) float corrupt[kTileColumns];          // 1 where a clipped frame corrupts the pixel's code
   // The per-pixel results before masking; the reason is a DecodeMask as a float so that the
   // arithmetic loop has one element width (GCC 12 then vectorises it).
   alignas(64) float value[kTileColumns];
@@ -179,9 +187,9 @@ struct TileConstants {
   float late_phase;
 };
 
-template <bool kPhase, bool kComplementary, class Pixel>
-void finish_tile(int n, TileSums& t, const Pixel* __restrict max_value, Pixel saturation, const TileConstants& k,
-                 float* __restrict coordinate, float* __restrict quality, DecodeMask* __restrict mask) {
+template <bool kPhase, bool kComplementary>
+void finish_tile(int n, TileSums& t, const TileConstants& k, float* __restrict coordinate, float* __restrict quality,
+                 DecodeMask* __restrict mask) {
   constexpr float kTwoPi = 2.0f * std::numbers::pi_v<float>;
   constexpr float kHalfPi = 0.5f * std::numbers::pi_v<float>;
   constexpr float kThreeHalfPi = 1.5f * std::numbers::pi_v<float>;
@@ -194,7 +202,8 @@ void finish_tile(int n, TileSums& t, const Pixel* __restrict max_value, Pixel sa
   float* __restrict reason = t.reason;
   float* __restrict value = t.value;
   float* __restrict q_out = t.q;
-  for (int x = 0; x < n; ++x) reason[x] = max_value[x] >= saturation ? kSaturated : kValid;
+  const float* __restrict corrupt = t.corrupt;
+  for (int x = 0; x < n; ++x) reason[x] = corrupt[x] != 0.0f ? kSaturated : kValid;
   for (int x = 0; x < n; ++x) {
     const std::uint32_t h = slproto::gray_to_binary(t.code[x]);
     const float contrast = t.contrast[x];
@@ -279,7 +288,8 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
   const bool with_complementary = complementary_ >= 0;
   const bool with_inverse = !gray_inverse_.empty();
   const int steps = static_cast<int>(phase_.size());
-  const auto saturation = static_cast<Pixel>(std::min(options_.saturation_level(), 65535));
+  // As a float: the full scale (2^bit_depth, "never") does not fit a Pixel.
+  const auto clip_level = static_cast<float>(options_.saturation_level());
   const float gray_step = static_cast<float>(config.period_px) * (with_complementary ? 0.5f : 1.0f);
   const bool slstudio = config.gray_low_bits == slproto::GrayLowBits::slstudio_parity;
   const TileConstants constants{
@@ -293,10 +303,10 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
       slstudio ? gray_step - 1.0f : 0.0f,
       2.0f * std::numbers::pi_v<float> * (1.0f - 0.5f / static_cast<float>(config.period_px))};
   const std::size_t code_bits = gray_.size() + (with_complementary ? 1 : 0);
-  const std::size_t pattern_count = plan_.size();
 
   TileSums t;
   alignas(64) Pixel max_value[kTileColumns];
+  float* __restrict corrupt = t.corrupt;
   float* __restrict threshold2 = t.threshold2;
   float* __restrict contrast = t.contrast;
   float* __restrict sum_sin = t.sum_sin;
@@ -313,14 +323,6 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
       auto tile_of = [&](int pattern) { return planes + static_cast<std::size_t>(pattern) * plane + offset; };
 
       // Plane by plane over the tile: each loop is a contiguous, vectorisable pass.
-      {
-        const Pixel* __restrict first = tile_of(0);
-        std::copy(first, first + n, max_value);
-        for (std::size_t p = 1; p < pattern_count; ++p) {
-          const Pixel* __restrict in = tile_of(static_cast<int>(p));
-          for (int x = 0; x < n; ++x) max_value[x] = max_value[x] < in[x] ? in[x] : max_value[x];
-        }
-      }
       if (with_phase) {
         // Step 0 has weights sin 0 = 0, cos 0 = 1: it initialises the sums.
         {
@@ -399,17 +401,77 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
         if (with_complementary) add_bit(complementary_);
       }
 
+      // Saturation by frame kind: what each kind's clipped frames corrupt (decode.hpp).
+      std::fill(corrupt, corrupt + n, 0.0f);
+      auto max_of = [&](const int* patterns, std::size_t count) {
+        const Pixel* __restrict first = tile_of(patterns[0]);
+        std::copy(first, first + n, max_value);
+        for (std::size_t i = 1; i < count; ++i) {
+          const Pixel* __restrict in = tile_of(patterns[i]);
+          for (int x = 0; x < n; ++x) max_value[x] = max_value[x] < in[x] ? in[x] : max_value[x];
+        }
+      };
+      // Counts the clipped pixels of max_value and, when `corrupts`, marks them (`gate`: also
+      // needs gate[x] != 0, or null).
+      auto clipped = [&](std::size_t& count, bool corrupts, const float* __restrict gate) {
+        std::uint32_t c = 0;
+        for (int x = 0; x < n; ++x) {
+          const bool clip = static_cast<float>(max_value[x]) >= clip_level;
+          c += clip ? 1u : 0u;
+          const bool bad = corrupts & clip & (gate == nullptr || gate[x] != 0.0f);
+          corrupt[x] = bad ? 1.0f : corrupt[x];
+        }
+        count += c;
+      };
+      if (with_phase) {
+        max_of(phase_.data(), phase_.size());
+        clipped(counts.clipped.phase, true, nullptr);
+      }
+      if (with_white_black) {
+        max_of(&white_, 1);
+        // The white frame sets the threshold; where the position comes from the Gray edges
+        // (no phase, or phase without the complementary bit), a clipped white moves them.
+        clipped(counts.clipped.white, !with_inverse && !(with_phase && with_complementary), nullptr);
+        max_of(&black_, 1);
+        clipped(counts.clipped.black, !with_inverse, nullptr);
+      }
+      {
+        float* __restrict unclear = t.q;  // scratch: finish_tile writes it later
+        if (with_inverse) {
+          // A bit is lost where its frame and its inverse both clip: max over bits of the pair's min.
+          std::fill(unclear, unclear + n, 0.0f);
+          auto both_clip = [&](int pattern, int inverse) {
+            const Pixel* __restrict in = tile_of(pattern);
+            const Pixel* __restrict inv = tile_of(inverse);
+            for (int x = 0; x < n; ++x) {
+              const Pixel lower = in[x] < inv[x] ? in[x] : inv[x];
+              unclear[x] = static_cast<float>(lower) >= clip_level ? 1.0f : unclear[x];
+            }
+          };
+          for (std::size_t bit = 0; bit < gray_.size(); ++bit) both_clip(gray_[bit], gray_inverse_[bit]);
+          if (with_complementary) both_clip(complementary_, complementary_inverse_);
+        } else {
+          // A clipped bright bit still reads 1 while the clip level is clear of the threshold.
+          const float margin = options_.min_contrast_dn;
+          for (int x = 0; x < n; ++x) unclear[x] = 2.0f * clip_level - threshold2[x] < margin ? 1.0f : 0.0f;
+        }
+        if (!code_frames_.empty()) {
+          max_of(code_frames_.data(), code_frames_.size());
+          clipped(counts.clipped.gray, true, unclear);
+        }
+      }
+
       float* coordinate = out.coordinate.data() + offset;
       float* quality = out.quality.data() + offset;
       DecodeMask* mask = out.mask.data() + offset;
       if (with_phase) {
         if (with_complementary)
-          finish_tile<true, true>(n, t, max_value, saturation, constants, coordinate, quality, mask);
+          finish_tile<true, true>(n, t, constants, coordinate, quality, mask);
         else
-          finish_tile<true, false>(n, t, max_value, saturation, constants, coordinate, quality, mask);
+          finish_tile<true, false>(n, t, constants, coordinate, quality, mask);
       } else {
         // Gray code alone: the constants carry the complementary bit's finer step.
-        finish_tile<false, false>(n, t, max_value, saturation, constants, coordinate, quality, mask);
+        finish_tile<false, false>(n, t, constants, coordinate, quality, mask);
       }
     }
     count_masks(out.mask.data() + row_offset, w, counts);
@@ -441,6 +503,7 @@ void ProjectorViewDecoder::finish(DecodedView& out) {
   });
   out.counts = {};
   counts_by_thread.combine_each([&](const DecodeCounts& c) {
+    out.counts.clipped += c.clipped;
     out.counts.valid += c.valid;
     out.counts.saturated += c.saturated;
     out.counts.low_contrast += c.low_contrast;
@@ -448,6 +511,14 @@ void ProjectorViewDecoder::finish(DecodedView& out) {
     out.counts.out_of_range += c.out_of_range;
   });
   if (options_.smoothing_radius > 0) smooth(out);
+  // The self-check hook: reads the stored frames and the output, never the inner loop's state.
+  if (options_.self_check) {
+    const FramePlanes frames{store_.data(), bytes_per_pixel_ == 2, width_, height_};
+    out.checks = check_decoded_view(plan_, frames, options_.smoothing_radius > 0 ? raw_coordinate_ : out.coordinate,
+                                    out, options_);
+  } else {
+    out.checks = {};
+  }
   reset();
 }
 
@@ -504,7 +575,13 @@ void ProjectorViewDecoder::smooth(DecodedView& out) {
   out.coordinate.resize(raw_coordinate_.size());
   const int w = width_, h = height_;
   const int radius = options_.smoothing_radius;
-  const float max_deviation = options_.smoothing_max_deviation_px;
+  const NoiseEstimate noise =
+      estimate_map_noise(raw_coordinate_, w, h, &out.quality,
+                         plan_.config().phase_steps > 0 ? static_cast<float>(plan_.config().period_px) : 0.0f);
+  out.coordinate_noise_px = static_cast<float>(noise.per_point);
+  const float max_deviation =
+      std::max(options_.smoothing_max_deviation_px, options_.noise_factor * static_cast<float>(noise.per_point));
+  out.smoothing_max_deviation_px = max_deviation;
   const float* raw = raw_coordinate_.data();
   const float* quality = out.quality.data();
   float* smoothed = out.coordinate.data();

@@ -218,13 +218,33 @@ PlaneFit fit_plane(const std::vector<Eigen::Vector3f>& points) {
   return fit;
 }
 
-BallBarResult measure_ball_bar(const PointCloud& cloud, const BallBarOptions& options) {
+namespace {
+void check_options(const BallBarOptions& options) {
   for (double r : options.nominal_radii_mm)
     if (!(r > 0)) throw std::invalid_argument("measure_ball_bar: nominal radii must be > 0");
   if (!(options.ransac_band_mm > 0) || !(options.refine_band_mm > 0) || !(options.radius_tolerance_mm > 0))
     throw std::invalid_argument("measure_ball_bar: bands and radius tolerance must be > 0");
   if (options.ransac_iterations < 1 || options.ransac_sample_points < 4)
     throw std::invalid_argument("measure_ball_bar: ransac_iterations must be >= 1 and ransac_sample_points >= 4");
+}
+}  // namespace
+
+FoundSphere find_sphere(const PointCloud& cloud, double nominal_radius_mm, const BallBarOptions& options) {
+  check_options(options);
+  if (!(nominal_radius_mm > 0) || !std::isfinite(nominal_radius_mm))
+    throw std::invalid_argument("find_sphere: the nominal radius must be > 0 mm");
+  std::vector<std::uint32_t> candidates;
+  candidates.reserve(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i)
+    if (cloud.points[i].allFinite()) candidates.push_back(static_cast<std::uint32_t>(i));
+  std::mt19937_64 rng(options.seed);
+  const SphereSearch search{cloud.points, candidates, options, rng};
+  auto [fit, inliers] = search.find(nominal_radius_mm, "one");
+  return {fit, std::move(inliers)};
+}
+
+BallBarResult measure_ball_bar(const PointCloud& cloud, const BallBarOptions& options) {
+  check_options(options);
   std::vector<std::uint32_t> candidates;
   candidates.reserve(cloud.size());
   for (std::size_t i = 0; i < cloud.size(); ++i)

@@ -359,10 +359,12 @@ MeshResult poisson_mesh(const PointCloud& cloud, const PoissonOptions& options) 
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(INFINITY), hi = Eigen::Vector3d::Constant(-INFINITY);
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     if (!cloud.points[i].allFinite())
-      throw std::invalid_argument("poisson_mesh: point " + std::to_string(i) + " is not finite");
+      throw std::invalid_argument("poisson_mesh: point " + std::to_string(i) + " of the " +
+                                  std::to_string(cloud.size()) + "-point model is not finite");
     const float len = cloud.normals[i].norm();
     if (!std::isfinite(len) || len < 1e-6f)
-      throw std::invalid_argument("poisson_mesh: normal " + std::to_string(i) + " is zero or not finite");
+      throw std::invalid_argument("poisson_mesh: normal " + std::to_string(i) + " of the " +
+                                  std::to_string(cloud.size()) + "-point model is zero or not finite");
     s.points.push_back(cloud.points[i].cast<double>());
     s.normals.push_back((cloud.normals[i] / len).cast<double>());
     lo = lo.cwiseMin(s.points.back());
@@ -500,6 +502,37 @@ MeshResult poisson_mesh(const PointCloud& cloud, const PoissonOptions& options) 
                     });
   result.mesh = std::move(mesh);
   return result;
+}
+
+const char* mesh_mode_name(MeshMode mode) { return mode == MeshMode::raw ? "raw" : "watertight"; }
+
+bool parse_mesh_mode(const std::string& name, MeshMode& mode) {
+  if (name == "raw")
+    mode = MeshMode::raw;
+  else if (name == "watertight")
+    mode = MeshMode::watertight;
+  else
+    return false;
+  return true;
+}
+
+void MeshOptions::check() const {
+  auto positive = [](double v, const char* name) {
+    if (!(v > 0) || !std::isfinite(v)) throw std::invalid_argument(std::string("mesh.") + name + " must be > 0");
+  };
+  if (!(cell_mm >= 0) || !std::isfinite(cell_mm))
+    throw std::invalid_argument("mesh.cell_mm must be >= 0 (0: from the point spacing)");
+  positive(cell_spacing_factor, "cell_spacing_factor");
+  if (!(min_cell_mm >= 0) || !std::isfinite(min_cell_mm) || min_cell_mm > 100)
+    throw std::invalid_argument("mesh.min_cell_mm must be in [0, 100] mm (0: no floor)");
+  positive(kernel_factor, "kernel_factor");
+  positive(trim_factor, "trim_factor");
+  if (min_neighbors < 1) throw std::invalid_argument("mesh.min_neighbors must be >= 1");
+  if (!(adaptivity >= 0 && adaptivity <= 1)) throw std::invalid_argument("mesh.adaptivity must be in [0, 1]");
+  if (!(min_piece_fraction >= 0 && min_piece_fraction <= 1))
+    throw std::invalid_argument("mesh.min_piece_fraction must be in [0, 1]");
+  if (!(fill_holes_mm >= 0) || !std::isfinite(fill_holes_mm))
+    throw std::invalid_argument("mesh.fill_holes_mm must be >= 0");
 }
 
 MeshTopology mesh_topology(const TriangleMesh& mesh) {

@@ -22,13 +22,14 @@ namespace {
 constexpr double kDegPerRad = 180.0 / std::numbers::pi;
 
 void check_view(const PointCloud& cloud, const std::string& name) {
-  if (cloud.size() == 0) throw std::invalid_argument(name + " is empty");
+  if (cloud.size() == 0) throw std::invalid_argument(name + " is empty (no points to register)");
   if (cloud.normals.size() != cloud.size())
     throw std::invalid_argument(name + " has " + std::to_string(cloud.normals.size()) + " normals for " +
                                 std::to_string(cloud.size()) + " points (registration needs one per point)");
   for (std::size_t i = 0; i < cloud.size(); ++i)
     if (!cloud.points[i].allFinite())
-      throw std::invalid_argument(name + ": point " + std::to_string(i) + " is not finite");
+      throw std::invalid_argument(name + ": point " + std::to_string(i) + " of " + std::to_string(cloud.size()) +
+                                  " is not finite");
 }
 
 void check_options(const IcpOptions& o) {
@@ -371,7 +372,7 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
                                 std::to_string(angles_deg.size()) + " angles");
   if (views.empty()) throw std::invalid_argument("register_views: no views");
   for (std::size_t i = 0; i < views.size(); ++i) {
-    check_view(views[i], "view " + std::to_string(i));
+    check_view(views[i], "register_views: view " + std::to_string(i));
     if (!std::isfinite(angles_deg[i]))
       throw std::invalid_argument("register_views: angle of view " + std::to_string(i) + " is not finite");
   }

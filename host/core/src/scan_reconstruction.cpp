@@ -5,10 +5,17 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <condition_variable>
+#include <cstdio>
+#include <deque>
+#include <exception>
 #include <mutex>
 #include <optional>
 #include <stdexcept>
+#include <utility>
+
+#include "slscan/core/noise_estimate.hpp"
 
 namespace slscan::core {
 
@@ -30,7 +37,14 @@ void ReconstructionOptions::check() const {
   turntable_denoise.check();
   depth_smoothing.check();
   overlap.check();
-  if (voxel_mm < 0) throw std::invalid_argument("reconstruction options: voxel_mm must be >= 0");
+  mesh.check();
+  if (!(noise_factor >= 0) || !std::isfinite(noise_factor))
+    throw std::invalid_argument("reconstruction options: noise_factor must be a finite value >= 0 (0: fixed limits)");
+  // A voxel below a micron thins nothing and costs a hash entry per point; above a metre it
+  // leaves a handful of points: both are typos, not requests.
+  if (voxel_mm != 0 && !(voxel_mm >= 0.001 && voxel_mm <= 1000))
+    throw std::invalid_argument("reconstruction options: model.voxel_mm " + std::to_string(voxel_mm) +
+                                " outside [0.001, 1000] mm (0: no thinning)");
   if (normal_neighbors != 0 && normal_neighbors < 3)
     throw std::invalid_argument("reconstruction options: normal_neighbors must be 0 (the views' grid normals) or >= 3");
   if (outliers.k < 1 || !(outliers.std_ratio > 0))
@@ -43,6 +57,92 @@ void ReconstructionOptions::check() const {
   if (max_pending_projector_views < 1)
     throw std::invalid_argument("reconstruction options: max_pending_projector_views must be >= 1");
 }
+
+namespace {
+
+// Lambertian shading against the geometry: the decoded modulation is proportional to the
+// projector's irradiance, albedo x cos(incidence) / distance^2, so over a surface of even albedo
+// it correlates with that term computed from the triangulated points, their grid normals and the
+// projector's centre. A wrong pose (its direction read the other way) gives a surface that is
+// smooth and in front of both devices, but lit the wrong way. Pearson correlation of log terms
+// over every 4th row; NaN with too few points.
+double shading_correlation(const OrganizedCloud& cloud, const slproto::RigidTransform& cam_from_proj) {
+  const Eigen::Vector3f centre(static_cast<float>(cam_from_proj.t[0]), static_cast<float>(cam_from_proj.t[1]),
+                               static_cast<float>(cam_from_proj.t[2]));
+  const int w = cloud.width, h = cloud.height;
+  double n = 0, sx = 0, sy = 0, sxx = 0, syy = 0, sxy = 0;
+  for (int v = 1; v + 1 < h; v += 4)
+    for (int u = 1; u + 1 < w; u += 2) {
+      auto at = [&](int du, int dv) {
+        return static_cast<std::size_t>(v + dv) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u + du);
+      };
+      const std::size_t c = at(0, 0), l = at(-1, 0), r = at(1, 0), a = at(0, -1), b = at(0, 1);
+      if (!cloud.valid[c] || !cloud.valid[l] || !cloud.valid[r] || !cloud.valid[a] || !cloud.valid[b]) continue;
+      if (!(cloud.quality[c] > 0)) continue;
+      Eigen::Vector3f normal = (cloud.points[r] - cloud.points[l]).cross(cloud.points[b] - cloud.points[a]);
+      if (!(normal.norm() > 0)) continue;
+      normal.normalize();
+      if (normal.dot(cloud.points[c]) > 0) normal = -normal;  // facing the camera
+      const Eigen::Vector3f to_projector = centre - cloud.points[c];
+      const float d2 = to_projector.squaredNorm();
+      const float cosine = normal.dot(to_projector) / std::sqrt(d2);
+      const double x = std::log(std::max(cosine, 0.02f) / d2), y = std::log(cloud.quality[c]);
+      n += 1;
+      sx += x;
+      sy += y;
+      sxx += x * x;
+      syy += y * y;
+      sxy += x * y;
+    }
+  if (n < 500) return std::nan("");
+  const double cov = sxy / n - sx / n * sy / n, vx = sxx / n - sx / n * sx / n, vy = syy / n - sy / n * sy / n;
+  return vx > 0 && vy > 0 ? cov / std::sqrt(vx * vy) : std::nan("");
+}
+
+// Decoded pixels that mostly fail to triangulate: the codes are right but the geometry they are
+// put into is not (a wrong coding axis, pose direction or calibration).
+void add_geometry_check(ProjectorViewReport& report) {
+  constexpr double kMinShare = 0.5;
+  // Measured on the virtual rig: 0.87 with the right pose, -0.67 read the other way.
+  constexpr double kMinShading = 0.1;
+  const std::size_t decoded = report.decode.valid;
+  if (decoded < 1000) return;
+  const double share = static_cast<double>(report.triangulate.valid) / static_cast<double>(decoded);
+  if (share >= kMinShare) {
+    if (std::isfinite(report.shading_correlation) && report.shading_correlation < kMinShading) {
+      char value[32];
+      std::snprintf(value, sizeof value, "%.2f", report.shading_correlation);
+      report.checks.findings.push_back(
+          {"geometry",
+           std::string("the decoded modulation does not follow the light the geometry implies (shading correlation ") +
+               value + ", a right pose gives ~0.9): the projector's pose is probably read the wrong way",
+           "the other pose direction (--pose-direction cam_from_proj or proj_from_cam), or a calibration that "
+           "belongs to this capture; slscan import --detect tries it"});
+    }
+    return;
+  }
+  const auto& t = report.triangulate;
+  std::string why;
+  auto add = [&](std::size_t count, const char* what) {
+    if (count == 0) return;
+    why += (why.empty() ? "" : ", ") + std::to_string(count) + " " + what;
+  };
+  add(t.outside_frustum, "outside the projector image");
+  add(t.no_intersection, "without an intersection");
+  add(t.outside_depth, "outside the depth range");
+  add(t.not_converged, "not converged");
+  char percent[32];
+  std::snprintf(percent, sizeof percent, "%.1f %%", 100 * share);
+  report.checks.findings.push_back(
+      {"geometry",
+       std::string("only ") + percent + " of the " + std::to_string(decoded) + " decoded pixels triangulate (" + why +
+           ")",
+       "the codes are consistent but the geometry is not: check the coding axis (axis), the calibration's pose "
+       "direction (--pose-direction) and that the calibration belongs to this capture; slscan import --detect tries "
+       "them"});
+}
+
+}  // namespace
 
 struct ScanReconstructor::Impl {
   slproto::RigCalibration calibration;
@@ -59,19 +159,44 @@ struct ScanReconstructor::Impl {
     bool fused = false;
   };
 
-  std::mutex mutex;  // guards everything below
-  std::condition_variable decoder_released;
+  // A complete projector-view waiting for a thread to decode and triangulate it.
+  struct Job {
+    int view_index = 0, projector = 0;
+    std::unique_ptr<ProjectorViewDecoder> decoder;
+  };
+
+  std::mutex mutex;                          // guards everything below
+  std::condition_variable decoder_released;  // a decoder came back or a running job ended
   std::vector<std::unique_ptr<ProjectorViewDecoder>> free_decoders;
   int decoders_in_flight = 0;
   std::map<std::pair<int, int>, std::unique_ptr<ProjectorViewDecoder>> receiving;  // (view, projector)
+  std::deque<Job> queued;        // complete projector-views not started yet, oldest first
+  int jobs_running = 0;          // jobs some thread is executing right now
+  std::exception_ptr job_error;  // the first job that threw; finish() rethrows it
   std::map<int, ViewState> views;
   std::size_t completed = 0;
   std::vector<int> incomplete;
   tbb::task_group workers;
 
+  // The scheduling rule (docs/architecture.md, "Threads"): a thread never blocks on work that
+  // is only queued. Each job lives in `queued`, and every task given to `workers` runs whichever
+  // job is first there (or nothing, if another thread took it). A thread that needs a decoder
+  // while all are in flight runs queued jobs itself, and waits only while a job runs on
+  // another thread, which will hand a decoder back. With one worker thread (taskset -c 0, a
+  // one-CPU container) the tbb tasks run only when the producer waits in finish(), so waiting
+  // for them in add_frame would wait for ever.
   std::unique_ptr<ProjectorViewDecoder> acquire_decoder(std::unique_lock<std::mutex>& lock) {
-    decoder_released.wait(
-        lock, [&] { return !free_decoders.empty() || decoders_in_flight < options.max_pending_projector_views; });
+    for (;;) {
+      if (!free_decoders.empty() || decoders_in_flight < options.max_pending_projector_views) break;
+      if (!queued.empty()) {
+        run_first_queued(lock);
+        continue;
+      }
+      // Every decoder in flight holds a projector-view still receiving frames (the input
+      // interleaves more projector-views than the bound): nothing would ever hand one back.
+      if (jobs_running == 0) break;
+      decoder_released.wait(lock);
+    }
     ++decoders_in_flight;
     if (!free_decoders.empty()) {
       auto decoder = std::move(free_decoders.back());
@@ -91,7 +216,33 @@ struct ScanReconstructor::Impl {
     decoder_released.notify_all();
   }
 
-  // Decodes and triangulates one complete projector-view, on a worker.
+  // Runs the oldest queued job on this thread; `lock` is held on entry and on return, released
+  // while the job runs. A job's exception is kept for finish(), so it surfaces in the same place
+  // whichever thread ran the job.
+  void run_first_queued(std::unique_lock<std::mutex>& lock) {
+    Job job = std::move(queued.front());
+    queued.pop_front();
+    ++jobs_running;
+    lock.unlock();
+    std::exception_ptr error;
+    try {
+      process_projector_view(job.view_index, job.projector, std::move(job.decoder));
+    } catch (...) {
+      error = std::current_exception();
+    }
+    lock.lock();
+    --jobs_running;
+    if (error && !job_error) job_error = error;
+    decoder_released.notify_all();
+  }
+
+  // A tbb task: one queued job, if a thread that needed a decoder has not run it already.
+  void run_queued_task() {
+    std::unique_lock lock(mutex);
+    if (!queued.empty()) run_first_queued(lock);
+  }
+
+  // Decodes and triangulates one complete projector-view, on whichever thread runs its job.
   void process_projector_view(int view_index, int projector, std::unique_ptr<ProjectorViewDecoder> decoder) {
     struct Release {
       Impl* self;
@@ -108,6 +259,17 @@ struct ScanReconstructor::Impl {
     TriangulatedView triangulated = triangulators[static_cast<std::size_t>(projector)]->triangulate(decoded);
     report.triangulate_ms = ms_since(start);
     report.triangulate = triangulated.counts;
+    report.checks = std::move(decoded.checks);
+    report.coordinate_noise_px = decoded.coordinate_noise_px;
+    report.smoothing_max_deviation_px = decoded.smoothing_max_deviation_px;
+    const NoiseEstimate depth_noise = estimate_depth_noise(triangulated.cloud);
+    report.depth_noise_mm = depth_noise.per_point;
+    report.depth_second_difference_mm = depth_noise.second_difference;
+    report.shading_correlation = shading_correlation(
+        triangulated.cloud,
+        calibration.projector(projector == 0 ? slproto::ProjectorSide::left : slproto::ProjectorSide::right)
+            .cam_from_proj);
+    add_geometry_check(report);
 
     bool both_done = false;
     {
@@ -138,13 +300,31 @@ struct ScanReconstructor::Impl {
     };
     std::array<OrganizedCloud, 2> clouds;
     std::array<FlyingPixelCounts, 2> flying{};
+    // Noise-adaptive limits from the projectors' own noise (the fixed options are the floor).
+    FlyingPixelOptions flying_options = options.flying_pixels;
+    FusionOptions fusion_options = options.fusion;
+    {
+      double second = 0, variance = 0;
+      for (std::size_t side = 0; side < 2; ++side) {
+        if (!view->triangulated[side]) continue;
+        const auto& p = view->report.projectors[side];
+        second = std::max(second, p.depth_second_difference_mm);
+        variance += p.depth_noise_mm * p.depth_noise_mm;
+      }
+      if (options.noise_factor > 0) {
+        flying_options.max_abs_mm =
+            std::max(flying_options.max_abs_mm, static_cast<float>(options.noise_factor * second));
+        fusion_options.agreement_mm =
+            std::max(fusion_options.agreement_mm, static_cast<float>(options.noise_factor * std::sqrt(variance)));
+      }
+    }
     for (std::size_t side = 0; side < 2; ++side) {
       if (!view->triangulated[side]) {
         clouds[side].resize(width, height);
         continue;
       }
       if (options.remove_flying_pixels) {
-        FlyingPixelResult cleaned = remove_flying_pixels(view->triangulated[side]->cloud, options.flying_pixels);
+        FlyingPixelResult cleaned = remove_flying_pixels(view->triangulated[side]->cloud, flying_options);
         flying[side] = cleaned.counts;
         clouds[side] = std::move(cleaned.cloud);
       } else {
@@ -156,7 +336,7 @@ struct ScanReconstructor::Impl {
     const double flying_ms = split();
     const OrganizedCloud& left = clouds[0];
     const OrganizedCloud& right = clouds[1];
-    FusionResult fused = fuse_left_right(left, right, options.fusion);
+    FusionResult fused = fuse_left_right(left, right, fusion_options);
     ViewProducts products;
     products.source.assign(left.size(), FusionSource::none);
     for (std::size_t i = 0; i < left.size(); ++i) {
@@ -194,6 +374,9 @@ struct ScanReconstructor::Impl {
     products.cloud = std::move(denoised.cloud);
 
     std::lock_guard lock(mutex);
+    view->report.flying_max_abs_mm = flying_options.max_abs_mm;
+    view->report.fusion_agreement_mm = fusion_options.agreement_mm;
+    view->report.noise_factor = options.noise_factor;
     view->report.flying_pixels_ms = flying_ms;
     view->report.fusion_ms = fusion_ms;
     view->report.denoise_ms = denoise_ms;
@@ -242,6 +425,13 @@ ScanReconstructor::ScanReconstructor(const slproto::RigCalibration& calibration,
 
 ScanReconstructor::~ScanReconstructor() {
   try {
+    // Without finish() (an aborted scan, an error): drop the jobs nobody started, so this
+    // returns once the running ones end instead of decoding what nobody will read.
+    std::deque<Impl::Job> dropped;
+    {
+      std::lock_guard lock(impl_->mutex);
+      dropped.swap(impl_->queued);
+    }
     impl_->workers.wait();
   } catch (...) {  // NOLINT(bugprone-empty-catch): a destructor must not throw; finish() reports errors
   }
@@ -302,14 +492,10 @@ void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::by
   auto owned = std::move(it->second);
   s.receiving.erase(it);
   view.report.projectors[side].present = true;
+  s.queued.push_back({info.view_index, info.projector, std::move(owned)});
   lock.unlock();
   Impl* impl = impl_.get();
-  const int view_index = info.view_index, projector = info.projector;
-  // The decoder is moved into the task through a shared_ptr: tbb's task functors are copyable.
-  auto shared = std::make_shared<std::unique_ptr<ProjectorViewDecoder>>(std::move(owned));
-  s.workers.run([impl, view_index, projector, shared] {
-    impl->process_projector_view(view_index, projector, std::move(*shared));
-  });
+  s.workers.run([impl] { impl->run_queued_task(); });
 }
 
 std::size_t ScanReconstructor::completed_projector_views() const {
@@ -325,7 +511,12 @@ std::vector<int> ScanReconstructor::incomplete_views() const {
 ScanResult ScanReconstructor::finish() {
   Impl& s = *impl_;
   auto start = Clock::now();
-  s.workers.wait();
+  s.workers.wait();  // runs every queued job (on this thread too)
+  {
+    std::unique_lock lock(s.mutex);
+    while (!s.queued.empty()) s.run_first_queued(lock);  // none left by the tasks; kept as the invariant
+    if (s.job_error) std::rethrow_exception(std::exchange(s.job_error, nullptr));
+  }
   ScanResult result;
   result.stage_ms["wait_for_views"] = ms_since(start);
 
@@ -416,12 +607,6 @@ ScanResult ScanReconstructor::finish() {
   result.stage_ms["normals"] = ms_since(start);
   result.model = std::move(merged);
 
-  start = Clock::now();
-  if (s.options.build_mesh && result.model.has_normals() && result.model.size() >= 100) {
-    result.mesh = poisson_mesh(result.model, s.options.mesh);
-    result.meshed = true;
-  }
-  result.stage_ms["mesh"] = ms_since(start);
   return result;
 }
 

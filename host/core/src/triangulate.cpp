@@ -164,8 +164,11 @@ void ProjectorTriangulator::solve_tile(int n, const float* __restrict ray_x, con
         t.s[i] = sv - step;
         t.step[i] = std::abs(step);
       }
-      // NaN (masked) pixels don't hold it up.
-      if (std::none_of(t.step, t.step + n, [](double step) { return step >= 1e-10; })) break;
+      // NaN (masked) pixels don't hold it up. A plain loop over the n steps just set (not
+      // std::none_of over a pointer range, which the analyser could not bound: issue 17 lint).
+      bool moving = false;
+      for (int i = 0; i < n; ++i) moving |= t.step[i] >= 1e-10;
+      if (!moving) break;
     }
     for (int i = 0; i < n; ++i) {
       const double sv = t.s[i];

@@ -65,10 +65,13 @@ OverlapSelection select_best_views(const std::vector<PointCloud>& points,
         if (other_cos < steep_cos || other_cos <= own_cos) continue;
         double u = 0, v = 0;
         if (!camera.project({q.x(), q.y(), q.z()}, u, v)) continue;
+        // Only a projection near the grid is rounded: a huge or non-finite one (an absurd
+        // calibration) has no neighbour there, and lround of it would be undefined.
+        const OrganizedCloud& grid = *grids[j];
+        if (!(u > -2.0 && v > -2.0 && u < grid.width + 1.0 && v < grid.height + 1.0)) continue;
         const long cu = std::lround(u), cv = std::lround(v);
         const double footprint = q.z() / camera.fx;
         const float lateral = static_cast<float>(options.same_spot_footprints * footprint);
-        const OrganizedCloud& grid = *grids[j];
         for (long dv = -1; dv <= 1 && !covered; ++dv)
           for (long du = -1; du <= 1 && !covered; ++du) {
             const long uu = cu + du, vv = cv + dv;

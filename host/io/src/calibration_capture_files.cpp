@@ -10,6 +10,8 @@
 #include <sstream>
 
 #include "slproto/calibration.hpp"
+#include "slproto/file_util.hpp"
+#include "slproto/json_fields.hpp"
 #include "slscan/io/ply.hpp"
 
 namespace slscan::io {
@@ -23,29 +25,6 @@ constexpr const char* kFormat = "slscan-calibration-capture";
 constexpr int kFormatVersion = 1;
 
 [[noreturn]] void fail(const std::string& origin, const std::string& what) { throw IoError(origin + ": " + what); }
-
-const json& field(const json& obj, const std::string& origin, const std::string& path, const char* key) {
-  if (!obj.is_object()) fail(origin, (path.empty() ? std::string("the manifest") : path) + " must be an object");
-  const auto it = obj.find(key);
-  if (it == obj.end()) fail(origin, (path.empty() ? "" : path + ".") + key + ": missing");
-  return *it;
-}
-
-template <typename T>
-T typed(const json& obj, const std::string& origin, const std::string& path, const char* key) {
-  const json& v = field(obj, origin, path, key);
-  const std::string name = (path.empty() ? "" : path + ".") + key;
-  if constexpr (std::is_same_v<T, bool>) {
-    if (!v.is_boolean()) fail(origin, name + ": expected true or false");
-  } else if constexpr (std::is_same_v<T, int>) {
-    if (!v.is_number_integer()) fail(origin, name + ": expected an integer");
-  } else if constexpr (std::is_same_v<T, double>) {
-    if (!v.is_number()) fail(origin, name + ": expected a number");
-  } else {
-    if (!v.is_string()) fail(origin, name + ": expected a string");
-  }
-  return v.get<T>();
-}
 
 const char* kind_name(core::CalibrationFrame::Kind kind) {
   return kind == core::CalibrationFrame::Kind::camera ? "camera" : "pattern";
@@ -61,87 +40,60 @@ std::string frame_file(const core::CalibrationFrame& frame) {
   return name;
 }
 
-}  // namespace
-
-core::CalibrationCapture read_calibration_capture(const std::string& folder) {
-  const std::string origin = (fs::path(folder) / "manifest.json").string();
-  std::ifstream in(origin, std::ios::binary);
-  if (!in) fail(origin, "cannot open (is '" + folder + "' a calibration capture folder?)");
-  json doc;
-  try {
-    doc = json::parse(in);
-  } catch (const std::exception& e) {
-    fail(origin, std::string("not valid JSON: ") + e.what());
-  }
-  if (typed<std::string>(doc, origin, "", "format") != kFormat)
-    fail(origin, std::string("format: expected \"") + kFormat + "\"");
-  if (const int version = typed<int>(doc, origin, "", "format_version"); version != kFormatVersion)
-    fail(origin, "format_version " + std::to_string(version) + " is not supported (this build reads version " +
-                     std::to_string(kFormatVersion) + ")");
+core::CalibrationCapture read_manifest(const json& doc, const std::string& origin, const std::string& folder) {
+  slproto::JsonObject r(doc, "");
+  if (r.text("format") != kFormat) r.fail("format", std::string("expected \"") + kFormat + "\"");
+  if (const int version = r.integer<int>("format_version"); version != kFormatVersion)
+    r.fail("format_version", std::to_string(version) + " is not supported (this build reads version " +
+                                 std::to_string(kFormatVersion) + ")");
 
   core::CalibrationCapture capture;
-  const json& target = field(doc, origin, "", "target");
-  capture.target.squares_x = typed<int>(target, origin, "target", "squares_x");
-  capture.target.squares_y = typed<int>(target, origin, "target", "squares_y");
-  capture.target.square_mm = typed<double>(target, origin, "target", "square_mm");
-  capture.target.thickness_mm = typed<double>(target, origin, "target", "thickness_mm");
-  if (capture.target.squares_x < 3 || capture.target.squares_y < 3 || capture.target.squares_x > 100 ||
-      capture.target.squares_y > 100)
-    fail(origin, "target: squares_x and squares_y must be in [3, 100]");
+  slproto::JsonObject target = r.object("target");
+  capture.target.squares_x = target.integer<int>("squares_x", 3, 100);
+  capture.target.squares_y = target.integer<int>("squares_y", 3, 100);
+  capture.target.square_mm = target.number("square_mm");
+  capture.target.thickness_mm = target.number("thickness_mm");
+  target.finish();
   if (!(capture.target.square_mm > 0) || !(capture.target.thickness_mm >= 0))
     fail(origin, "target: square_mm must be > 0 and thickness_mm >= 0");
-  auto plan = slproto::parse_pattern_plan(field(doc, origin, "", "pattern_plan").dump(), origin + ": pattern_plan");
-  if (!plan) throw IoError(plan.error().message);
-  capture.pattern_plan = *plan;
-  capture.bit_depth = typed<int>(doc, origin, "", "bit_depth");
+  capture.pattern_plan = slproto::read_pattern_plan(r.object("pattern_plan"));
+  if (auto status = capture.pattern_plan.check(); !status) fail(origin, "pattern_plan: " + status.error().message);
+  capture.bit_depth = r.integer<int>("bit_depth");
   if (capture.bit_depth != 8 && capture.bit_depth != 10 && capture.bit_depth != 12 && capture.bit_depth != 16)
     fail(origin, "bit_depth " + std::to_string(capture.bit_depth) + ": expected 8, 10, 12 or 16");
-  capture.platform_radius_mm = typed<double>(doc, origin, "", "platform_radius_mm");
+  capture.platform_radius_mm = r.number("platform_radius_mm");
   if (!(capture.platform_radius_mm > 0)) fail(origin, "platform_radius_mm must be > 0");
-  capture.source = doc.contains("source") ? typed<std::string>(doc, origin, "", "source") : folder;
+  capture.source = folder;
+  r.read("source", capture.source);
 
-  const json& poses = field(doc, origin, "", "poses");
-  if (!poses.is_array() || poses.empty()) fail(origin, "poses: expected a non-empty list");
+  const slproto::JsonArray poses = r.array("poses", 1);
   for (std::size_t i = 0; i < poses.size(); ++i) {
-    const std::string path = "poses[" + std::to_string(i) + "]";
-    capture.poses.push_back({typed<std::string>(poses[i], origin, path, "name"),
-                             typed<bool>(poses[i], origin, path, "on_turntable"),
-                             typed<double>(poses[i], origin, path, "table_angle_deg")});
+    slproto::JsonObject pose = poses.object(i);
+    capture.poses.push_back({pose.text("name"), pose.boolean("on_turntable"), pose.number("table_angle_deg")});
+    pose.finish();
   }
   const std::array<slproto::PatternPlan, 2> plans{capture.plan(slproto::CodingAxis::columns),
                                                   capture.plan(slproto::CodingAxis::rows)};
-  const json& frames = field(doc, origin, "", "frames");
-  if (!frames.is_array() || frames.empty()) fail(origin, "frames: expected a non-empty list");
+  const slproto::JsonArray frames = r.array("frames", 1);
+  r.finish();
   cv::Size size;
   for (std::size_t i = 0; i < frames.size(); ++i) {
-    const std::string path = "frames[" + std::to_string(i) + "]";
-    const json& f = frames[i];
+    const std::string path = frames.path_of(i);
+    slproto::JsonObject f = frames.object(i);
     core::CalibrationFrame frame;
-    frame.pose = typed<int>(f, origin, path, "pose");
-    if (frame.pose < 0 || frame.pose >= static_cast<int>(capture.poses.size()))
-      fail(origin, path + ".pose " + std::to_string(frame.pose) + ": the manifest lists " +
-                       std::to_string(capture.poses.size()) + " poses");
-    const std::string kind = typed<std::string>(f, origin, path, "kind");
-    if (kind == "camera") {
-      frame.kind = core::CalibrationFrame::Kind::camera;
-    } else if (kind == "pattern") {
-      frame.kind = core::CalibrationFrame::Kind::pattern;
-      const std::string side = typed<std::string>(f, origin, path, "projector");
-      if (side != "left" && side != "right") fail(origin, path + ".projector: expected \"left\" or \"right\"");
-      frame.side = side == "left" ? slproto::ProjectorSide::left : slproto::ProjectorSide::right;
-      const std::string axis = typed<std::string>(f, origin, path, "axis");
-      if (axis != "columns" && axis != "rows") fail(origin, path + ".axis: expected \"columns\" or \"rows\"");
-      frame.axis = axis == "columns" ? slproto::CodingAxis::columns : slproto::CodingAxis::rows;
-      const int index = typed<int>(f, origin, path, "pattern");
+    frame.pose = f.integer<int>("pose", 0, static_cast<int>(capture.poses.size()) - 1);
+    frame.kind = f.choice<core::CalibrationFrame::Kind>(
+        "kind", {{"camera", core::CalibrationFrame::Kind::camera}, {"pattern", core::CalibrationFrame::Kind::pattern}});
+    if (frame.kind == core::CalibrationFrame::Kind::pattern) {
+      frame.side = f.choice<slproto::ProjectorSide>(
+          "projector", {{"left", slproto::ProjectorSide::left}, {"right", slproto::ProjectorSide::right}});
+      frame.axis = f.choice<slproto::CodingAxis>(
+          "axis", {{"columns", slproto::CodingAxis::columns}, {"rows", slproto::CodingAxis::rows}});
       const std::size_t count = plans[static_cast<std::size_t>(frame.axis)].size();
-      if (index < 0 || static_cast<std::size_t>(index) >= count)
-        fail(origin, path + ".pattern " + std::to_string(index) + ": the plan along " + axis + " has " +
-                         std::to_string(count) + " patterns");
-      frame.pattern_index = static_cast<std::size_t>(index);
-    } else {
-      fail(origin, path + ".kind \"" + kind + "\": expected \"camera\" or \"pattern\"");
+      frame.pattern_index = f.integer<std::size_t>("pattern", 0, count - 1);
     }
-    const std::string name = typed<std::string>(f, origin, path, "file");
+    const std::string name = f.text("file");
+    f.finish();
     const std::string file = (fs::path(folder) / name).string();
     frame.image = cv::imread(file, cv::IMREAD_UNCHANGED);
     if (frame.image.empty()) fail(file, "missing or not a readable image (" + path + ")");
@@ -157,6 +109,19 @@ core::CalibrationCapture read_calibration_capture(const std::string& folder) {
     capture.frames.push_back(std::move(frame));
   }
   return capture;
+}
+
+}  // namespace
+
+core::CalibrationCapture read_calibration_capture(const std::string& folder) {
+  const std::string origin = (fs::path(folder) / "manifest.json").string();
+  auto text = slproto::read_whole_file(origin);
+  if (!text) fail(origin, "cannot open (is '" + folder + "' a calibration capture folder?)");
+  try {
+    return read_manifest(slproto::parse_json_strict(*text), origin, folder);
+  } catch (const slproto::JsonFieldError& e) {
+    fail(origin, e.what());
+  }
 }
 
 void write_calibration_capture(const core::CalibrationCapture& capture, const std::string& folder) {
@@ -191,7 +156,7 @@ void write_calibration_capture(const core::CalibrationCapture& capture, const st
                         {"squares_y", capture.target.squares_y},
                         {"square_mm", capture.target.square_mm},
                         {"thickness_mm", capture.target.thickness_mm}}},
-                      {"pattern_plan", json::parse(slproto::format_pattern_plan(capture.pattern_plan))},
+                      {"pattern_plan", slproto::pattern_plan_to_json(capture.pattern_plan)},
                       {"bit_depth", capture.bit_depth},
                       {"platform_radius_mm", capture.platform_radius_mm},
                       {"source", capture.source},

@@ -1,6 +1,7 @@
 #include "slscan/io/image_sequence_import.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -13,6 +14,7 @@
 #include "slproto/capture.hpp"
 #include "slproto/crc32c.hpp"
 #include "slproto/framing.hpp"
+#include "slproto/json_fields.hpp"
 #include "slproto/messages.hpp"
 #include "slscan/io/ply.hpp"
 
@@ -30,10 +32,52 @@ std::string resolve(const std::string& base_dir, const std::string& name) {
   return (p.is_absolute() || base_dir.empty() ? p : fs::path(base_dir) / p).string();
 }
 
+// Strict descriptions: an object may hold only the listed fields; anything else is refused with
+// its path and the nearest known name ("phase.offset_radians: unknown field; did you mean
+// offset_rad?"), through the one strict JSON field reader (slproto/json_fields.hpp).
+void only_fields(const json& node, const std::string& origin, const std::string& path,
+                 std::initializer_list<const char*> keys) {
+  try {
+    slproto::JsonObject object(node, path);
+    for (const char* key : keys) (void)object.has(key);
+    object.finish();
+  } catch (const slproto::JsonFieldError& e) {
+    fail(origin, e.what());
+  }
+}
+
 std::string file_name(const json& node, const std::string& origin, const std::string& field) {
   if (!node.is_string() || node.get<std::string>().empty()) fail(origin, field + " must be a file name");
   return node.get<std::string>();
 }
+
+// An optional integer field in [min, max] (absent: `fallback`), refused (never wrapped or
+// thrown as a JSON library error) when it is anything else.
+long long int_field(const json& object, const char* key, long long fallback, long long min, long long max,
+                    const std::string& origin, const std::string& field) {
+  if (!object.contains(key)) return fallback;
+  const json& v = object[key];
+  const std::string range = "[" + std::to_string(min) + ", " + std::to_string(max) + "]";
+  if (!v.is_number_integer()) fail(origin, field + " must be an integer in " + range + ", got " + v.dump());
+  if (v.is_number_unsigned() ? v.get<unsigned long long>() > static_cast<unsigned long long>(max)
+                             : (v.get<long long>() < min || v.get<long long>() > max))
+    fail(origin, field + " must be an integer in " + range + ", got " + v.dump());
+  return v.get<long long>();
+}
+
+// An optional text field (absent: `fallback`).
+std::string text_field(const json& object, const char* key, const std::string& fallback, const std::string& origin,
+                       const std::string& field) {
+  if (!object.contains(key)) return fallback;
+  const json& v = object[key];
+  if (!v.is_string()) fail(origin, field + " must be a string, got " + v.dump());
+  return v.get<std::string>();
+}
+
+// The widest zero-padded or space-padded number a file name pattern may ask for: an int has at
+// most 10 digits, and a width of 999999999 would make each name a gigabyte (seconds of CPU each).
+constexpr std::size_t kMaxPatternWidthDigits = 2;
+constexpr int kMaxPatternWidth = 16;
 
 // A list of names, or {"pattern": "frame_%02d.png", "first": 2, "count": 10}.
 std::vector<std::string> file_list(const json& node, const std::string& origin, const std::string& field) {
@@ -45,6 +89,8 @@ std::vector<std::string> file_list(const json& node, const std::string& origin, 
   }
   if (!node.is_object() || !node.contains("pattern") || !node.contains("count"))
     fail(origin, field + " must be a list of file names or {\"pattern\", \"first\", \"count\"}");
+  only_fields(node, origin, field, {"pattern", "first", "count"});
+  const int first = static_cast<int>(int_field(node, "first", 0, 0, 1000000, origin, field + ".first"));
   const std::string pattern = file_name(node["pattern"], origin, field + ".pattern");
   if (pattern.find('%') == std::string::npos || pattern.find('%') != pattern.rfind('%') ||
       pattern.find_first_of("diu", pattern.find('%')) == std::string::npos)
@@ -52,11 +98,17 @@ std::vector<std::string> file_list(const json& node, const std::string& origin, 
   const std::size_t conversion_end = pattern.find_first_of("diu", pattern.find('%'));
   if (pattern.find_first_not_of("0123456789", pattern.find('%') + 1) != conversion_end)
     fail(origin, field + ".pattern '" + pattern + "' may only have a width between % and d");
-  if (!node["count"].is_number_integer() || node["count"].get<int>() < 1 || node["count"].get<int>() > 4096)
-    fail(origin, field + ".count must be an integer in [1, 4096]");
-  const int first = node.value("first", 0);
-  for (int i = 0; i < node["count"].get<int>(); ++i) {
-    std::vector<char> buffer(pattern.size() + 32);
+  const std::string width_digits = pattern.substr(pattern.find('%') + 1, conversion_end - pattern.find('%') - 1);
+  const std::size_t significant = width_digits.find_first_not_of('0');
+  if (significant != std::string::npos && (width_digits.size() - significant > kMaxPatternWidthDigits ||
+                                           std::stoi(width_digits.substr(significant)) > kMaxPatternWidth))
+    fail(origin, field + ".pattern '" + pattern + "': the width " + width_digits.substr(significant) + " is over " +
+                     std::to_string(kMaxPatternWidth) + " (a name padded to at most " +
+                     std::to_string(kMaxPatternWidth) + " characters per number)");
+  if (!node.contains("count")) fail(origin, field + ".count is missing");
+  const int count = static_cast<int>(int_field(node, "count", 0, 1, 4096, origin, field + ".count"));
+  for (int i = 0; i < count; ++i) {
+    std::vector<char> buffer(pattern.size() + kMaxPatternWidth + 16);
     std::snprintf(buffer.data(), buffer.size(), pattern.c_str(), first + i);
     out.emplace_back(buffer.data());
   }
@@ -69,10 +121,7 @@ int positive_int(const json& object, const char* key, const std::string& origin,
     if (fallback >= 0) return fallback;
     fail(origin, field + "." + key + " is missing");
   }
-  const json& v = object[key];
-  if (!v.is_number_integer() || v.get<long long>() < 1 || v.get<long long>() > 65535)
-    fail(origin, field + "." + key + " must be an integer in [1, 65535]");
-  return v.get<int>();
+  return static_cast<int>(int_field(object, key, 0, 1, 65535, origin, field + "." + key));
 }
 
 }  // namespace
@@ -81,25 +130,37 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
                                                const std::string& origin) {
   json doc;
   try {
-    doc = json::parse(json_text);
-  } catch (const json::exception& e) {  // parse_error, and out_of_range for a number beyond double
+    doc = slproto::parse_json_strict(json_text);  // syntax, duplicate keys (with their path), depth
+  } catch (const std::exception& e) {
     fail(origin, std::string("not valid JSON: ") + e.what());
   }
   if (!doc.is_object()) fail(origin, "the description must be a JSON object");
-  static const char* known[] = {
-      "projector", "axis",   "camera", "white", "black", "gray", "phase", "complementary", "complementary_inverse",
-      "image_dir", "comment"};
   if (doc.contains("inverse"))
     fail(origin, "unknown field 'inverse': list the inverse (negative) Gray frames as gray.inverse_files");
-  for (const auto& [key, value] : doc.items())
-    if (std::find(std::begin(known), std::end(known), key) == std::end(known))
-      fail(origin, "unknown field '" + key + "'");
+  only_fields(doc, origin, "",
+              {"projector", "axis", "camera", "white", "black", "gray", "phase", "complementary",
+               "complementary_inverse", "image_dir", "comment", "calibration_keys"});
+  if (doc.contains("projector") && doc["projector"].is_object())
+    only_fields(doc["projector"], origin, "projector", {"width", "height"});
+  if (doc.contains("camera") && doc["camera"].is_object())
+    only_fields(doc["camera"], origin, "camera", {"width", "height", "bit_depth"});
+  if (doc.contains("phase") && doc["phase"].is_object())
+    only_fields(doc["phase"], origin, "phase", {"files", "period_px", "offset_steps", "offset_rad"});
 
   SequenceDescription d;
+  if (doc.contains("calibration_keys")) {
+    const json& keys = doc["calibration_keys"];
+    if (!keys.is_object()) fail(origin, "calibration_keys must be an object {field: key in the calibration file}");
+    for (const auto& [field, key] : keys.items()) {
+      if (!key.is_string() || key.get<std::string>().empty())
+        fail(origin, "calibration_keys." + field + " must be the name of an entry in the calibration file");
+      d.calibration_keys[field] = key.get<std::string>();
+    }
+  }
   if (!doc.contains("projector") || !doc["projector"].is_object()) fail(origin, "projector {width, height} is missing");
   d.plan.projector_width = positive_int(doc["projector"], "width", origin, "projector", -1);
   d.plan.projector_height = positive_int(doc["projector"], "height", origin, "projector", -1);
-  const std::string axis = doc.value("axis", std::string("columns"));
+  const std::string axis = text_field(doc, "axis", "columns", origin, "axis");
   if (axis != "columns" && axis != "rows") fail(origin, "axis must be \"columns\" or \"rows\", got \"" + axis + "\"");
   d.plan.axis = axis == "columns" ? slproto::CodingAxis::columns : slproto::CodingAxis::rows;
   if (doc.contains("camera")) {
@@ -119,10 +180,7 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
   if (!doc.contains("gray") || !doc["gray"].is_object())
     fail(origin, "gray {files, bit_order, bits_not_projected} is missing");
   const json& gray = doc["gray"];
-  static const char* known_gray[] = {"files", "inverse_files", "bit_order", "bits_not_projected", "convention"};
-  for (const auto& [key, value] : gray.items())
-    if (std::find(std::begin(known_gray), std::end(known_gray), key) == std::end(known_gray))
-      fail(origin, "unknown field 'gray." + key + "'");
+  only_fields(gray, origin, "gray", {"files", "inverse_files", "bit_order", "bits_not_projected", "convention"});
   if (!gray.contains("files")) fail(origin, "gray.files is missing");
   std::vector<std::string> gray_files = file_list(gray["files"], origin, "gray.files");
   std::vector<std::string> inverse_files;
@@ -134,7 +192,7 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
                        ": each Gray frame needs its inverse");
   }
   d.plan.inverse_gray = !inverse_files.empty();
-  const std::string order = gray.value("bit_order", std::string("msb_first"));
+  const std::string order = text_field(gray, "bit_order", "msb_first", origin, "gray.bit_order");
   if (order != "msb_first" && order != "lsb_first")
     fail(origin, "gray.bit_order must be \"msb_first\" or \"lsb_first\", got \"" + order + "\"");
   if (order == "lsb_first") {
@@ -148,8 +206,8 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
     else if (convention != "centre")
       fail(origin, "gray.convention must be \"centre\" or \"slstudio\", got " + convention.dump());
   }
-  const int not_projected = gray.value("bits_not_projected", 0);
-  if (not_projected < 0 || not_projected > 12) fail(origin, "gray.bits_not_projected must be in [0, 12]");
+  const int not_projected =
+      static_cast<int>(int_field(gray, "bits_not_projected", 0, 0, 12, origin, "gray.bits_not_projected"));
 
   std::vector<std::string> phase_files;
   if (doc.contains("phase")) {
@@ -159,6 +217,22 @@ SequenceDescription parse_sequence_description(const std::string& json_text, con
     phase_files = file_list(phase["files"], origin, "phase.files");
     d.plan.period_px = positive_int(phase, "period_px", origin, "phase", -1);
     d.plan.phase_steps = static_cast<int>(phase_files.size());
+    // Another scanner's phase origin (docs/real-data.md): which listed frame shows our step 0,
+    // and a continuous offset (the phase its frames show at projector coordinate 0).
+    if (phase.contains("offset_steps")) {
+      const json& v = phase["offset_steps"];
+      if (!v.is_number_integer() || (v.is_number_unsigned() && v.get<unsigned long long>() > (1u << 20)) ||
+          v.get<long long>() < 0 || v.get<long long>() >= d.plan.phase_steps)
+        fail(origin, "phase.offset_steps must be an integer in [0, " + std::to_string(d.plan.phase_steps) +
+                         ") (the position in phase.files of the frame that shows step 0), got " + v.dump());
+      d.plan.phase_offset_steps = v.get<int>();
+    }
+    if (phase.contains("offset_rad")) {
+      const json& v = phase["offset_rad"];
+      if (!v.is_number() || !std::isfinite(v.get<double>()) || std::abs(v.get<double>()) > 2 * 3.14159265358979323846)
+        fail(origin, "phase.offset_rad must be a number of radians within [-2 pi, 2 pi], got " + v.dump());
+      d.plan.phase_offset_rad = v.get<double>();
+    }
     if (not_projected != 0)
       fail(origin, "with phase frames the Gray code numbers the fringe periods: gray.bits_not_projected must be 0");
   } else {
@@ -235,7 +309,40 @@ SequenceDescription load_sequence_description(const std::string& path) {
   return parse_sequence_description(text.str(), fs::path(path).parent_path().string(), path);
 }
 
-ImportedSequence read_image_sequence(const SequenceDescription& description) {
+namespace {
+
+// One image as stored: grey, 8 or 16 bit.
+ImageCache::Image load_image(const std::string& path, const std::string& what) {
+  if (!fs::is_regular_file(path)) throw IoError(what + ": no such image file");
+  cv::Mat image;
+  try {
+    image = cv::imread(path, cv::IMREAD_ANYDEPTH | cv::IMREAD_ANYCOLOR);
+  } catch (const cv::Exception& e) {
+    throw IoError(what + ": unreadable image (" + e.what() + ")");
+  }
+  if (image.empty()) throw IoError(what + ": not an image OpenCV can read (PNG, BMP, TIFF, JPG)");
+  if (image.channels() == 3 || image.channels() == 4) {
+    cv::Mat grey;
+    cv::cvtColor(image, grey, image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);
+    image = grey;
+  }
+  if (image.channels() != 1) throw IoError(what + ": " + std::to_string(image.channels()) + " channels");
+  if (image.depth() != CV_8U && image.depth() != CV_16U)
+    throw IoError(what + ": the image is float; only 8- and 16-bit images are read");
+  ImageCache::Image out;
+  out.width = image.cols;
+  out.height = image.rows;
+  out.depth = image.depth() == CV_8U ? 8 : 16;
+  const std::size_t row_bytes = static_cast<std::size_t>(image.cols) * image.elemSize();
+  out.bytes.resize(row_bytes * static_cast<std::size_t>(image.rows));
+  for (int y = 0; y < image.rows; ++y)
+    std::memcpy(out.bytes.data() + static_cast<std::size_t>(y) * row_bytes, image.ptr(y), row_bytes);
+  return out;
+}
+
+}  // namespace
+
+ImportedSequence read_image_sequence(const SequenceDescription& description, ImageCache* cache) {
   ImportedSequence out;
   out.plan = slproto::PatternPlan(description.plan);
   if (description.files.size() != out.plan.size())
@@ -243,56 +350,51 @@ ImportedSequence read_image_sequence(const SequenceDescription& description) {
                   " images but its pattern plan has " + std::to_string(out.plan.size()) + " frames");
   out.source_bit_depth = description.bit_depth;
   out.bit_depth = description.bit_depth == 16 ? 12 : description.bit_depth;
-  const int expected_cv_depth = description.bit_depth == 8 ? CV_8U : CV_16U;
+  const int expected_depth = description.bit_depth == 8 ? 8 : 16;
   out.frames.reserve(description.files.size());
   for (std::size_t i = 0; i < description.files.size(); ++i) {
     const std::string& path = description.files[i];
     const std::string what =
         path + " (" + slproto::pattern_kind_name(out.plan[i].kind) + " " + std::to_string(out.plan[i].index) + ")";
-    if (!fs::is_regular_file(path)) throw IoError(what + ": no such image file");
-    cv::Mat image;
-    try {
-      image = cv::imread(path, cv::IMREAD_ANYDEPTH | cv::IMREAD_ANYCOLOR);
-    } catch (const cv::Exception& e) {
-      throw IoError(what + ": unreadable image (" + e.what() + ")");
+    ImageCache::Image loaded;
+    const ImageCache::Image* image = nullptr;
+    if (cache != nullptr) {
+      auto it = cache->images.find(path);
+      if (it == cache->images.end()) it = cache->images.emplace(path, load_image(path, what)).first;
+      image = &it->second;
+    } else {
+      loaded = load_image(path, what);
+      image = &loaded;
     }
-    if (image.empty()) throw IoError(what + ": not an image OpenCV can read (PNG, BMP, TIFF, JPG)");
-    if (image.channels() == 3 || image.channels() == 4) {
-      cv::Mat grey;
-      cv::cvtColor(image, grey, image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);
-      image = grey;
-    }
-    if (image.channels() != 1) throw IoError(what + ": " + std::to_string(image.channels()) + " channels");
-    if (image.depth() != expected_cv_depth)
-      throw IoError(what + ": the image is " +
-                    (image.depth() == CV_8U    ? "8"
-                     : image.depth() == CV_16U ? "16"
-                                               : "float") +
+    if (image->depth != expected_depth)
+      throw IoError(what + ": the image is " + std::to_string(image->depth) +
                     "-bit, the description says camera.bit_depth " + std::to_string(description.bit_depth));
     if (i == 0) {
-      out.width = image.cols;
-      out.height = image.rows;
+      out.width = image->width;
+      out.height = image->height;
       if ((description.camera_width && description.camera_width != out.width) ||
           (description.camera_height && description.camera_height != out.height))
         throw IoError(what + ": the image is " + std::to_string(out.width) + " x " + std::to_string(out.height) +
                       ", the description says " + std::to_string(description.camera_width) + " x " +
                       std::to_string(description.camera_height));
-    } else if (image.cols != out.width || image.rows != out.height) {
-      throw IoError(what + ": the image is " + std::to_string(image.cols) + " x " + std::to_string(image.rows) +
+    } else if (image->width != out.width || image->height != out.height) {
+      throw IoError(what + ": the image is " + std::to_string(image->width) + " x " + std::to_string(image->height) +
                     ", the first image is " + std::to_string(out.width) + " x " + std::to_string(out.height));
     }
-    if (description.bit_depth == 10 || description.bit_depth == 12) {
-      double max_value = 0;
-      cv::minMaxLoc(image, nullptr, &max_value);
-      if (max_value >= (1 << description.bit_depth))
-        throw IoError(what + ": holds the value " + std::to_string(static_cast<int>(max_value)) +
-                      ", beyond camera.bit_depth " + std::to_string(description.bit_depth));
+    std::vector<std::uint8_t> bytes = image->bytes;
+    if (description.bit_depth > 8) {
+      auto* samples = reinterpret_cast<std::uint16_t*>(bytes.data());
+      const std::size_t count = bytes.size() / 2;
+      if (description.bit_depth == 10 || description.bit_depth == 12) {
+        const std::uint16_t max_value = count ? *std::max_element(samples, samples + count) : 0;
+        if (max_value >= (1 << description.bit_depth))
+          throw IoError(what + ": holds the value " + std::to_string(max_value) + ", beyond camera.bit_depth " +
+                        std::to_string(description.bit_depth));
+      }
+      if (description.bit_depth == 16)  // wire formats stop at 12 bits
+        for (std::size_t k = 0; k < count; ++k)
+          samples[k] = static_cast<std::uint16_t>(std::min(4095, (samples[k] + 8) >> 4));
     }
-    if (description.bit_depth == 16) image.convertTo(image, CV_16U, 1.0 / 16.0);  // wire formats stop at 12 bits
-    const std::size_t row_bytes = static_cast<std::size_t>(image.cols) * image.elemSize();
-    std::vector<std::uint8_t> bytes(row_bytes * static_cast<std::size_t>(image.rows));
-    for (int y = 0; y < image.rows; ++y)
-      std::memcpy(bytes.data() + static_cast<std::size_t>(y) * row_bytes, image.ptr(y), row_bytes);
     out.frames.push_back(std::move(bytes));
   }
   return out;

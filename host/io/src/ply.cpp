@@ -408,13 +408,19 @@ void write_ply(const std::string& path, const core::PointCloud& cloud, const Ply
 
 void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
                     const std::vector<Eigen::Vector3f>& normals, const std::vector<Eigen::Vector3i>& triangles,
-                    const PlyWriteOptions& options) {
+                    const PlyWriteOptions& options, const std::vector<std::uint8_t>& face_filled) {
   const bool with_normals = !normals.empty() && normals.size() == vertices.size();
   std::string out = header("binary_little_endian", options.comments);
   out +=
       "element vertex " + std::to_string(vertices.size()) + "\nproperty float x\nproperty float y\nproperty float z\n";
   if (with_normals) out += "property float nx\nproperty float ny\nproperty float nz\n";
-  out += "element face " + std::to_string(triangles.size()) + "\nproperty list uchar int vertex_indices\nend_header\n";
+  const bool with_flags = !face_filled.empty();
+  if (with_flags && face_filled.size() != triangles.size())
+    throw IoError(path + ": " + std::to_string(face_filled.size()) + " face flags for " +
+                  std::to_string(triangles.size()) + " triangles");
+  out += "element face " + std::to_string(triangles.size()) + "\nproperty list uchar int vertex_indices\n";
+  if (with_flags) out += "property uchar filled\n";
+  out += "end_header\n";
   for (std::size_t i = 0; i < vertices.size(); ++i) {
     for (int k = 0; k < 3; ++k) put(out, vertices[i][k]);
     if (with_normals)
@@ -428,6 +434,7 @@ void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>&
                       std::to_string(vertices.size()));
       put(out, static_cast<std::int32_t>(t[k]));
     }
+    if (with_flags) put(out, face_filled[static_cast<std::size_t>(&t - triangles.data())]);
   }
   write_file_atomically(path, out);
 }

@@ -5,7 +5,7 @@
 //        0    4  magic "SLPF"
 //        4    2  framing version (1; not the negotiated protocol version)
 //        6    1  message type (MessageType)
-//        7    1  flags (must be 0 in version 1)
+//        7    1  flags (0 on the wire; bit 0 in capture files: payload compressed)
 //        8    4  control length  (<= 1 MiB)   serialised protobuf message
 //       12    4  payload length  (<= 256 MiB) raw bytes, only for MessageType::frame
 //       16    4  control CRC32C over header bytes 0..15 followed by the control bytes
@@ -34,6 +34,9 @@ inline constexpr std::size_t wire_header_size = 32;
 inline constexpr std::array<std::byte, 4> wire_magic{std::byte{'S'}, std::byte{'L'}, std::byte{'P'}, std::byte{'F'}};
 inline constexpr std::uint32_t max_control_length = 1u << 20;
 inline constexpr std::uint32_t max_payload_length = 256u << 20;
+// Record flag, only in compressed capture files (slproto/capture.hpp) and only on frames: the
+// payload is stored compressed. Never on the wire.
+inline constexpr std::uint8_t record_flag_compressed = 0x01;
 
 struct WireHeader {
   std::uint16_t version = framing_version;
@@ -48,8 +51,10 @@ struct WireHeader {
   std::array<std::byte, wire_header_size> serialize() const noexcept;
   // Parses and checks magic, header CRC, version, type, flags, reserved and both length
   // bounds. `stream_offset` is only used to say where in the stream a problem is.
+  // `allowed_flags`: flag bits accepted (0 on the wire; record_flag_compressed, on frames
+  // only, in a compressed capture).
   static Result<WireHeader> parse(std::span<const std::byte, wire_header_size> bytes, std::uint64_t stream_offset = 0,
-                                  std::uint32_t payload_limit = max_payload_length);
+                                  std::uint32_t payload_limit = max_payload_length, std::uint8_t allowed_flags = 0);
 };
 
 // CRC of header bytes 0..15 followed by the control bytes (the header's control_crc).
@@ -99,6 +104,7 @@ struct Message {
 struct DecoderLimits {
   std::uint32_t max_control = max_control_length;
   std::uint32_t max_payload = max_payload_length;
+  std::uint8_t allowed_flags = 0;  // record flags accepted (capture files set record_flag_compressed)
 };
 
 // Incremental decoder of a record stream with bounded memory: it never holds more than one

@@ -4,7 +4,10 @@
 // Conventions (docs/conventions.md):
 //  * Projector pixel centres are at integer coordinates; column x covers [x - 0.5, x + 0.5].
 //  * Phase: phi(x) = 2 pi x / P. Phase frame n (0-based) shows
-//        I_n(x) = 0.5 + 0.5 cos(phi(x) + 2 pi n / N).
+//        I_n(x) = 0.5 + 0.5 cos(phi(x) + o + 2 pi (n - s) / N),
+//    o = phase_offset_rad, s = phase_offset_steps (both 0 in our own plans): another scanner's
+//    phase origin. s says which frame shows our step 0 (the list rotated by s frames); o is a
+//    continuous offset of the origin (the phase the frames show at coordinate 0).
 //  * Gray order k = floor(x / P). The m Gray frames show the reflected binary Gray code of k,
 //    most significant bit first. With the complementary bit, one more frame shows the least
 //    significant bit of the Gray code of the half-period index h = floor(2 x / P); the top m
@@ -74,6 +77,12 @@ struct PatternPlanConfig {
   bool with_white_black = true;
   bool inverse_gray = false;                        // each Gray (and complementary) bit followed by its inverse frame
   GrayLowBits gray_low_bits = GrayLowBits::centre;  // only for plans without phase steps
+  // Another scanner's phase origin (see above); only with phase steps. The decoder removes it,
+  // so the decoded coordinate keeps our convention.
+  double phase_offset_rad = 0;  // finite, within [-2 pi, 2 pi]
+  int phase_offset_steps = 0;   // in [0, phase_steps)
+  // The phase step n's total shift o + 2 pi (n - s) / N (radians).
+  double phase_shift_rad(int n) const;
   bool operator==(const PatternPlanConfig&) const = default;
 
   // Coded extent along the axis (width for columns, height for rows).

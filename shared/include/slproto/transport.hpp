@@ -99,6 +99,10 @@ class Connection {
   // Stops the heartbeat thread, shuts the socket down for writing (the peer reads a clean
   // end of stream after the last record) and closes it. Idempotent.
   void close();
+  // Safe from another thread while this one is in receive() or send(): shuts the socket down
+  // both ways, so they return Errc::disconnected at once (a server dropping a connection that
+  // is served elsewhere). The owner still calls close(); the object must outlive the call.
+  void interrupt() noexcept;
   bool is_open() const noexcept;
   std::string peer_address() const;
   ConnectionStats stats() const;

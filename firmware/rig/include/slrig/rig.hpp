@@ -27,12 +27,43 @@ struct SensorModel {
   int bit_depth = 8;  // 8, 10 or 12; 10/12-bit frames are little-endian uint16
   double full_well_electrons = 10000;
   double read_noise_dn = 1.5;
-  double dark_level_dn = 0;     // black offset added before clipping
-  double white_level_dn = 200;  // white matte surface facing a full-white projector, no ambient
-  double exposure_us = 8333;    // one 8-bit DLP pattern
+  double dark_level_dn = 0;  // black offset added before clipping
+  // A white matte surface facing a full-white projector at the platform centre, no ambient,
+  // reads white_level_dn at exposure_us and full LED current; the signal scales with both.
+  double white_level_dn = 200;
+  double exposure_us = 8333;  // the reference exposure (one 8-bit DLP pattern), and a render's default
+  // Charge above the full well that spills into the 4 neighbours (a quarter each), the rest
+  // drained by the anti-blooming gate; one hop, no cascade. 0: none.
+  double blooming = 0.3;
   std::uint64_t seed = 1;
   bool noise = true;  // false: an exact, noise-free render (for closed-form tests)
 };
+
+// How one frame is exposed. The defaults reproduce the scene's reference exposure exactly.
+struct Exposure {
+  double exposure_us = 0;  // camera exposure; 0 = the sensor's exposure_us
+  double led_current = 1;  // projector LED current relative to the white level's (0, 1]
+  // Time the projector's pattern lights the scene within the exposure (the sim board's DLP
+  // window overlapping the camera's); 0 = the whole exposure.
+  double projector_us = 0;
+  double start_s = 0;  // exposure start, seconds on any clock: the phase of the ambient flicker
+};
+
+// Room light: uniform, unshadowed, `level` x projector white on every surface (times its
+// albedo) at the reference exposure. With flicker the lamps' intensity is
+// level x (1 + depth cos(2 pi 2 mains_hz t + phase)): 100 or 120 Hz, integrated over each
+// exposure, so an exposure of a whole number of flicker periods sees no flicker at all.
+struct AmbientLight {
+  double level = 0.05;
+  double flicker_depth = 0;  // 0 = steady; 1 = the lamps go dark twice per mains cycle
+  double mains_hz = 50;
+  double phase_deg = 0;
+};
+
+// Surface finishes: albedo (diffuse), specular strength and Blinn-Phong exponent.
+enum class Material : std::uint8_t { matte, glazed, polished_metal, brushed_metal, dark_plastic };
+const char* material_name(Material material) noexcept;
+slproto::Result<Material> parse_material(std::string_view name);
 
 struct ProjectorModel {
   slproto::PinholeModel intrinsics;  // DMD resolution, coding axis along width by default
@@ -78,6 +109,9 @@ struct SceneObject {
   double mesh_scale = 1;                                       // mesh: file units -> mm
 };
 
+// Sets albedo, specular and specular_power to a finish (docs/virtual-rig.md, "Surfaces").
+void apply_material(SceneObject& object, Material material);
+
 // Inner corners of a checkerboard object in its own frame (z = 0 is the printed face, z points
 // into the board, corner (i, j) at (i * square_mm, j * square_mm, 0), i fastest; the square
 // left of and above corner (0, 0) is dark, as in OpenCV).
@@ -90,7 +124,11 @@ struct Scene {
   std::array<ProjectorModel, 2> projectors;  // indexed by ProjectorSide
   TurntableModel turntable;
   std::vector<SceneObject> objects;
-  double ambient = 0.05;  // fraction of projector white
+  AmbientLight ambient;
+  // One bounce of projector light between diffuse surfaces (concave parts, an object over the
+  // platform): each pixel gathers `interreflection_samples` cosine-distributed rays.
+  bool interreflection = false;
+  int interreflection_samples = 64;
   bool background_wall = true;
   double wall_distance_mm = 400;  // behind the turntable axis, along the camera's view
   slproto::PatternPlanConfig pattern_plan;
@@ -103,7 +141,8 @@ slproto::Status check_scene(const Scene& scene);
 
 enum class RigSize : std::uint8_t { full, small };  // 2464 x 2056, or 640 x 512 for unit tests
 
-// Scene presets: "ballbar", "plane", "sphere", "blade", "teacup", "calibration".
+// Scene presets: "ballbar", "plane", "sphere", "blade", "teacup", "calibration", and the
+// finishes that make exposure matter: "shiny_blade" (polished metal) and "dark_blade" (dark plastic).
 slproto::Result<Scene> scene_preset(std::string_view name, RigSize size = RigSize::full);
 slproto::Result<Scene> load_scene(const std::string& path);  // JSON scene file
 slproto::Result<Scene> parse_scene(std::string_view json_text, std::string_view origin = "scene");
@@ -141,18 +180,21 @@ class ViewRenderer {
   std::size_t frame_bytes() const;  // width * height * (1 or 2)
 
   // The camera frame while projector `side` shows pattern `pattern_index` of `plan` (the
-  // scene's own plan when omitted). The other projector is dark. Noise is seeded by
-  // (scene seed, view, side, pattern), so a render is reproducible.
+  // scene's own plan when omitted), exposed as `exposure` says (the scene's reference exposure
+  // when omitted). The other projector is dark. Noise is seeded by (scene seed, view, side,
+  // pattern) and, away from the reference, the exposure and LED current, so a render is
+  // reproducible.
   void render(ProjectorSide side, std::size_t pattern_index, std::span<std::uint8_t> out) const;
   void render(ProjectorSide side, const slproto::PatternPlan& plan, std::size_t pattern_index,
-              std::span<std::uint8_t> out) const;
+              std::span<std::uint8_t> out, const Exposure& exposure = {}) const;
   // Both projectors dark: ambient light only (what a camera calibration image sees).
-  void render_ambient(std::span<std::uint8_t> out) const;
+  void render_ambient(std::span<std::uint8_t> out, const Exposure& exposure = {}) const;
   // The render() preconditions (out.size() >= frame_bytes(), pattern_index < plan.size(), the
-  // plan's coded extent equal to the projector's) are programming errors: render() throws
-  // std::invalid_argument. try_render() returns them as a Status instead (for the firmware).
+  // plan's coded extent equal to the projector's, a possible exposure) are programming errors:
+  // render() throws std::invalid_argument. try_render() returns them as a Status instead (for
+  // the firmware).
   slproto::Status try_render(ProjectorSide side, const slproto::PatternPlan& plan, std::size_t pattern_index,
-                             std::span<std::uint8_t> out) const;
+                             std::span<std::uint8_t> out, const Exposure& exposure = {}) const;
 
   const ViewGroundTruth& ground_truth() const;
 

@@ -31,9 +31,13 @@ struct DaemonOptions {
   slproto::ConnectionOptions connection;
   // A connection must complete its hello within this (a silent or trickling peer is dropped).
   std::chrono::milliseconds handshake_timeout{3000};
-  // Connections served at once (the scanning host, status questions, hellos in progress); one
+  // Connections served at once past their hello (the scanning host, status questions); one
   // more is told "busy" and closed at once.
   std::size_t max_connections = 4;
+  // Connections still in their hello (each dropped at handshake_timeout), counted apart from
+  // max_connections, so silent connections cannot turn a real host away; when this many are
+  // waiting the oldest is dropped for the newcomer (docs/security.md, "Limits").
+  std::size_t max_handshakes = 64;
 };
 
 // What slscand accepts from a host (docs/security.md): a host sends only control messages, so
@@ -85,7 +89,8 @@ class Daemon {
   Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server);
   // One connection, on its own thread: the hello, then the scanner if no other host holds it,
   // else a status-only connection.
-  void serve_connection(slproto::Connection& connection);
+  // `hello_done(passed)` is called once the hello is over.
+  void serve_connection(slproto::Connection& connection, const std::function<void(bool passed)>& hello_done);
   // The host that holds the scanner: scans, aborts, status.
   void handle_connection(slproto::Connection& connection, std::uint32_t negotiated);
   // Any other host: StatusRequest is answered; a ScanRequest or Abort gets Errc::busy naming

@@ -52,6 +52,9 @@ slproto::Result<std::unique_ptr<GpioChip>> open_board_gpio_chip(const BoardConfi
 slproto::Result<std::unique_ptr<Camera>> open_board_camera(const BoardConfig& board, BoardDevices& devices);
 slproto::Result<std::unique_ptr<SerialPort>> open_board_serial_port(const BoardConfig& board, BoardDevices& devices);
 
+// The camera's trigger mode on this board: external (a line), or software (camera.trigger = "software").
+TriggerMode camera_trigger_mode(const BoardConfig& board);
+
 // "gpio: gpiod(v1) sim; camera: v4l2 libcamera sim; serial: termios libserialport emulator".
 std::string available_backends();
 

@@ -42,6 +42,8 @@ struct ObserverLines {
 enum class CameraTriggerSource : std::uint8_t {
   projector,  // the projectors' TRIG_OUT_1 are wired (ORed) to the camera trigger input
   gpio,       // the board drives the camera trigger from its own GPIO line
+  software,   // the sequencer triggers the camera in software once the pattern is shown (Aravis
+              // bench set-ups, e.g. the fake GigE Vision camera, which has no trigger line)
 };
 
 struct BoardConfig {
@@ -61,13 +63,20 @@ struct BoardConfig {
   std::array<DlpLines, 2> projectors{};
 
   // [camera]
-  std::string camera_backend;  // "v4l2", "libcamera" or "sim"
-  std::string camera_device;   // "/dev/video0", a libcamera id, or "virtual"
+  std::string camera_backend;  // "v4l2", "libcamera", "aravis" or "sim"
+  std::string camera_device;   // "/dev/video0", a libcamera id, an Aravis id/IP/serial, "auto" or "virtual"
   CameraFormat camera_format;
   double gain = 1.0;
   CameraTriggerSource trigger_source = CameraTriggerSource::projector;
   std::optional<unsigned> camera_trigger_line;  // [camera] trigger_line, for trigger = "gpio"
   double readout_us = 0;                        // sensor read-out after the exposure
+  // GenICam (aravis) cameras: where the trigger enters the camera and the sensor window.
+  std::string camera_trigger_input = "Line0";  // TriggerSource for external triggers (LineN)
+  std::string camera_trigger_activation = "RisingEdge";
+  int camera_offset_x = 0;
+  int camera_offset_y = 0;
+  int camera_packet_size = 0;  // GigE Vision stream packet size in bytes; 0 = negotiate
+  int camera_buffers = 8;      // the stream's buffer pool
 
   // [timing]
   double pattern_exposure_us = 8333;

@@ -32,6 +32,7 @@ struct CameraFormat {
 enum class TriggerMode : std::uint8_t {
   free_run,  // the sensor runs at its own frame rate
   external,  // one exposure per rising edge on the camera's trigger input
+  software,  // one exposure per software_trigger() (bench tests; Aravis cameras only)
 };
 const char* trigger_mode_name(TriggerMode mode) noexcept;
 
@@ -42,6 +43,25 @@ struct Frame {
   Nanos exposure_start_ns = 0;       // CLOCK_MONOTONIC; 0 when the backend cannot tell
   Nanos exposure_end_ns = 0;
   Nanos dequeued_ns = 0;  // when the frame reached user space
+};
+
+// A network camera's transport counters since the camera was opened (GigE Vision: resent and
+// missing packets; every camera: frames that arrived incomplete or not at all). Backends
+// without a transport of their own report zeros.
+struct CameraLinkStats {
+  std::uint64_t frames_completed = 0;
+  std::uint64_t frames_failed = 0;  // incomplete (missing packets) or timed out in the stream
+  std::uint64_t underruns = 0;      // a frame arrived with no free buffer in the pool
+  std::uint64_t packets_missing = 0;
+  std::uint64_t packets_resent = 0;
+  std::uint64_t resend_requests = 0;
+};
+CameraLinkStats operator-(const CameraLinkStats& after, const CameraLinkStats& before) noexcept;
+
+// One line of `slscand --check` about the camera ("camera features", "camera link").
+struct CameraDetail {
+  std::string name;
+  std::string detail;
 };
 
 class Camera {
@@ -58,6 +78,13 @@ class Camera {
   virtual Status stop() = 0;  // idempotent
   // The next frame, or Errc::timeout after `timeout_ns`.
   virtual Result<Frame> wait_frame(Nanos timeout_ns) = 0;
+  // In TriggerMode::software: expose one frame now.
+  virtual Status software_trigger() {
+    return slproto::make_error(slproto::Errc::unsupported, describe() + " has no software trigger");
+  }
+  virtual CameraLinkStats link_stats() const { return {}; }
+  // What `slscand --check` reports beyond describe(): features, link speed, clock mapping.
+  virtual std::vector<CameraDetail> check_details() const { return {}; }
 };
 
 }  // namespace slscand::hal

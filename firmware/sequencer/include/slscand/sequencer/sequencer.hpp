@@ -49,6 +49,7 @@ struct ScanOutcome {
   std::vector<TimingEvent> events;  // the whole scan's log
   std::vector<FrameTiming> frames;  // per-frame times for the report
   std::uint64_t backpressure_pauses = 0;
+  hal::CameraLinkStats camera_link;  // the camera transport's counters over this scan
 };
 
 using ProgressCallback = std::function<void(const slproto::pb::Progress&)>;

@@ -10,6 +10,19 @@
 // projector pixels); x_p = (phi + 2 pi order) P / (2 pi), so a camera
 // pixel that sees the centre of projector column 100 decodes to 100.0.
 //
+// The phase steps' shifts are the plan's (PatternPlanConfig::phase_shift_rad: another
+// scanner's phase origin is removed, so the coordinate keeps our convention).
+//
+// Saturation by frame kind: a pixel at the clip level in a frame invalidates only what that
+// frame corrupts: any phase frame, the phase; the black frame, the threshold; a Gray (or
+// complementary) frame, nothing while the clip level stays clear of the bit's threshold
+// (clipping keeps a bright bit bright); with inverse Gray frames, a bit whose frame and
+// inverse both clip; the white frame, the threshold of a plan whose position comes from the
+// Gray edges (no phase, or phase without the complementary bit's half-period margin).
+//
+// Self-checks (decode_checks.hpp): finish() measures, on a sample of rows, how consistent the
+// redundant codes are, and names the likely cause where they contradict the plan.
+//
 // A Gray bit is 1 where its frame is brighter than half of white + black (or, without
 // white/black frames, than the phase frames' mean); with inverse Gray frames, where it is
 // brighter than its inverse. Without phase steps the coordinate is a Gray step's centre, or
@@ -25,6 +38,7 @@
 #include <vector>
 
 #include "slproto/pattern_plan.hpp"
+#include "slscan/core/decode_checks.hpp"
 
 namespace slscan::core {
 
@@ -32,8 +46,9 @@ struct DecodeOptions {
   int bit_depth = 8;               // 8 (uint8 frames) or 10/12/16 (uint16 frames)
   float min_contrast_dn = 12.0f;   // white - black below this: too dark or too far to code
   float min_modulation_dn = 6.0f;  // phase modulation B below this: unreliable phase
-  // A pixel at or above this level in any frame is saturated; <= 0 means the top code of
-  // bit_depth (255 for 8 bit).
+  // A pixel at or above this level in a frame is clipped there (what that invalidates depends
+  // on the frame's kind, above); 0 means the top code of bit_depth (255 for 8 bit); the full
+  // scale 2^bit_depth (256 for 8 bit) means never.
   int saturation_dn = 0;
   int rows_per_task = 16;  // rows per TBB task: all planes of a block stay in cache
   // Noise reduction of the decoded coordinate over a (2 r + 1)^2 window centred on the pixel:
@@ -45,6 +60,14 @@ struct DecodeOptions {
   // phase is the largest per-pixel error on the rig; a 5 x 5 window divides it by ~5.
   int smoothing_radius = 2;
   float smoothing_max_deviation_px = 0.25f;
+  // Noise-adaptive gate: the deviation limit is at least noise_factor x the view's own
+  // coordinate noise (noise_estimate.hpp, from the unsmoothed coordinate of the better-lit
+  // half of the view, differences modulo the period), so a noisy scanner's pixels are smoothed
+  // rather than left raw; 0 keeps the fixed limit.
+  float noise_factor = 3.0f;
+  // Measure the codes' consistency after decoding (decode_checks.hpp); costs a sample of
+  // ~64 k pixels whatever the image size.
+  bool self_check = true;
 
   int saturation_level() const { return saturation_dn > 0 ? saturation_dn : (1 << bit_depth) - 1; }
   // Throws std::invalid_argument naming the first impossible field.
@@ -62,8 +85,22 @@ enum class DecodeMask : std::uint8_t {
   out_of_range = 4,    // decoded coordinate outside the projector's coded extent
 };
 
+// Pixels at the clip level in at least one frame of each kind, whether or not that
+// invalidated them (DecodeCounts::saturated counts those it did).
+struct SaturationCounts {
+  std::size_t white = 0, black = 0, gray = 0, phase = 0;  // gray: Gray and complementary frames, inverses too
+  SaturationCounts& operator+=(const SaturationCounts& o) {
+    white += o.white;
+    black += o.black;
+    gray += o.gray;
+    phase += o.phase;
+    return *this;
+  }
+};
+
 struct DecodeCounts {
   std::size_t valid = 0, saturated = 0, low_contrast = 0, low_modulation = 0, out_of_range = 0;
+  SaturationCounts clipped;  // by frame kind
   std::size_t total() const { return valid + saturated + low_contrast + low_modulation + out_of_range; }
 };
 
@@ -75,6 +112,9 @@ struct DecodedView {
   std::vector<float> quality;     // phase modulation B (DN), or Gray contrast without phase; 0 masked
   std::vector<DecodeMask> mask;
   DecodeCounts counts;
+  DecodeChecks checks;                   // with DecodeOptions::self_check
+  float coordinate_noise_px = 0;         // the unsmoothed coordinate's per-pixel noise, estimated from the data
+  float smoothing_max_deviation_px = 0;  // the deviation limit the smoothing used
 };
 
 // Decodes the frames of one projector-view. Reusable: after finish(), reset() (or
@@ -123,6 +163,7 @@ class ProjectorViewDecoder {
   std::vector<int> gray_;          // gray_[bit] = pattern index, bit 0 = most significant
   std::vector<int> gray_inverse_;  // its inverse frame, when the plan has them
   std::vector<int> phase_;         // phase_[n] = pattern index of step n
+  std::vector<int> code_frames_;   // every Gray and complementary frame and their inverses
   std::vector<float> phase_cos_, phase_sin_;
   std::vector<float> raw_coordinate_;  // before smoothing, reused
 };

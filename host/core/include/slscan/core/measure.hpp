@@ -61,4 +61,13 @@ struct BallBarResult {
 // naming what failed when a sphere cannot be found.
 BallBarResult measure_ball_bar(const PointCloud& cloud, const BallBarOptions& options = {});
 
+// One sphere of about `nominal_radius_mm` in the cloud, found as measure_ball_bar finds each of
+// its spheres (RANSAC on the nominal radius, then least squares on the points within
+// refine_band_mm until they settle). Throws std::runtime_error when there is none.
+struct FoundSphere {
+  SphereFit fit;
+  std::vector<std::uint32_t> points;  // indices into the cloud
+};
+FoundSphere find_sphere(const PointCloud& cloud, double nominal_radius_mm, const BallBarOptions& options = {});
+
 }  // namespace slscan::core

@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "slscan/core/point_cloud.hpp"
@@ -18,6 +19,51 @@ struct TriangleMesh {
   std::vector<Eigen::Vector3f> vertices;
   std::vector<Eigen::Vector3f> normals;                 // per vertex, unit, outward
   std::vector<std::array<std::uint32_t, 3>> triangles;  // counter-clockwise seen from outside
+  std::vector<std::uint8_t> filled;                     // per triangle, 1 = invented to close a hole (empty: none)
+};
+
+// The mesher (slscan_mesh, host/mesh: an OpenVDB level set of the points' implicit surface,
+// docs/mesh.md). Plain options here so that core's ReconstructionOptions can hold them without
+// linking OpenVDB or CGAL.
+enum class MeshMode : std::uint8_t {
+  raw,         // only where points are: the level set trimmed to the data, holes left open
+  watertight,  // raw's surface with every hole closed (filled faces flagged): closed 2-manifold
+};
+const char* mesh_mode_name(MeshMode mode);
+bool parse_mesh_mode(const std::string& name, MeshMode& mode);
+
+struct MeshOptions {
+  MeshMode mode = MeshMode::watertight;
+  double cell_mm = 0;              // > 0: the level set's voxel; 0: cell_spacing_factor x point spacing
+  double cell_spacing_factor = 1;  // cell from the median nearest-neighbour spacing
+  // Floor of the cell taken from the spacing (not of an explicit cell_mm): at full resolution the
+  // points are 0.074 mm apart and a cell that fine gives 5 M triangles in over a minute and 1 GB
+  // more memory, for detail below the scanner's lateral resolution (docs/mesh.md).
+  double min_cell_mm = 0.2;
+  double kernel_factor = 2;          // Gaussian sigma = kernel_factor x max(cell, spacing), support 3 sigma
+  int min_neighbors = 4;             // points with fewer neighbours within the support are left out
+  double adaptivity = 0;             // OpenVDB volumeToMesh adaptivity (0..1; 0 = uniform)
+  double trim_factor = 3;            // triangles with a vertex farther than this x max(cell, spacing) from
+                                     // every point are not surface (the level set's own closure)
+  double min_piece_fraction = 0.01;  // pieces with fewer triangles than this fraction of the largest are dropped
+  // Watertight: holes whose border fits in this diameter (mm) are closed with a smooth (faired)
+  // patch; larger ones with a minimal-area refined patch. 0: no fairing.
+  double fill_holes_mm = 10;
+
+  void check() const;  // throws std::invalid_argument naming the field
+};
+
+struct MeshStats {
+  double spacing_mm = 0;  // median nearest-neighbour distance of the points
+  std::size_t points_used = 0, isolated_points = 0;
+  std::size_t voxels = 0, leaves = 0;
+  std::size_t dropped_piece_triangles = 0;  // in pieces below min_piece_fraction
+  std::size_t rejected_triangles = 0;       // watertight: non-manifold triangles the half-edge mesh refused
+  std::size_t holes = 0, holes_filled = 0, holes_faired = 0, holes_left_open = 0;
+  std::size_t filled_triangles = 0;
+  std::size_t self_intersections = 0;  // watertight: face pairs left (0 unless a hole stayed open)
+  bool closed = false;
+  double mesh_ms = 0;  // meshing alone (wall)
 };
 
 struct PoissonOptions {
@@ -41,6 +87,8 @@ struct MeshResult {
   int cg_iterations = 0;
   double cg_relative_residual = 0;
   std::size_t trimmed_triangles = 0;
+  MeshMode mode = MeshMode::raw;
+  MeshStats stats;  // the level-set mesher's (slscan_mesh)
 };
 
 // Needs a cloud with one finite, unit-ish outward normal per point (pca_normals). Throws

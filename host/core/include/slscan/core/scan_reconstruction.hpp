@@ -36,6 +36,15 @@ struct ReconstructionOptions {
   FusionOptions fusion;
   bool remove_flying_pixels = true;  // on each projector's cloud, before fusion
   FlyingPixelOptions flying_pixels;
+  // Noise-adaptive limits (docs/pipeline.md): each projector-view's depth noise is estimated
+  // from its own grid (noise_estimate.hpp: the better-lit half of the view), and the
+  // flying-pixel limit becomes at least noise_factor x its second-difference sigma, the fusion
+  // agreement at least noise_factor x the difference of two points' noise. The fixed values
+  // above stay the floor: the rig's own noise is far below them (small rig: 3 x 0.014 mm
+  // against 0.1 mm), so its scans are those of the fixed limits. 0: the fixed values only; the
+  // estimates are reported either way. decode.noise_factor is the decoder's gate (config
+  // noise.factor sets both).
+  double noise_factor = 3;
   bool denoise_turntable = true;  // false keeps the platform and background (accuracy studies)
   TurntableDenoiseOptions turntable_denoise;
   GridNormalOptions grid_normals;
@@ -59,8 +68,10 @@ struct ReconstructionOptions {
   // its camera: outward), computed on the workers; >= 3 recomputes PCA normals over the merged
   // model with that many neighbours (slower, after the last frame; smoother where views overlap).
   int normal_neighbors = 0;
+  // The mesh is built by the session layer (slscan_mesh, StreamReconstruction::finish()), not
+  // by ScanReconstructor::finish(): core does not link OpenVDB.
   bool build_mesh = true;
-  PoissonOptions mesh;
+  MeshOptions mesh;
   int max_pending_projector_views = 8;  // decoders in flight (each holds one projector-view of frames)
   // Keep each projector's cloud (after flying-pixel removal) in ViewProducts: for accuracy
   // studies and the per-projector reports; off in scans (two more clouds per view in memory).
@@ -75,6 +86,16 @@ enum class FusionSource : std::uint8_t { none = 0, left = 1, right = 2, both = 3
 struct ProjectorViewReport {
   bool present = false;
   DecodeCounts decode;
+  // The decoder's self-checks (decode_checks.hpp), plus a "geometry" finding when most decoded
+  // pixels do not triangulate (the axis, the pose direction or the calibration does not fit).
+  DecodeChecks checks;
+  double coordinate_noise_px = 0;         // the decoder's estimate (unsmoothed coordinate)
+  float smoothing_max_deviation_px = 0;   // the decoder's smoothing gate as used
+  double depth_noise_mm = 0;              // per point, from the triangulated grid (before cleanup)
+  double depth_second_difference_mm = 0;  // its second-difference sigma (what the flying-pixel test sees)
+  // Modulation against the irradiance the geometry implies (cos incidence / distance^2, log
+  // terms, Pearson): high where the pose is right (scan_reconstruction.cpp).
+  double shading_correlation = 0;
   TriangulateCounts triangulate;
   FlyingPixelCounts flying_pixels;
   double decode_ms = 0, triangulate_ms = 0;
@@ -85,7 +106,9 @@ struct ViewReport {
   double commanded_angle_deg = 0, reported_angle_deg = 0;
   std::array<ProjectorViewReport, 2> projectors;
   FusionCounts fusion;
-  FlyingPixelCounts flying_pixels;  // both projectors' together
+  float flying_max_abs_mm = 0, fusion_agreement_mm = 0;  // the limits used (noise-adaptive)
+  double noise_factor = 0;                               // ReconstructionOptions::noise_factor
+  FlyingPixelCounts flying_pixels;                       // both projectors' together
   TurntableDenoiseCounts turntable_denoise;
   std::size_t points = 0;  // in the view's cloud after cleaning
   std::size_t outliers_removed = 0;
@@ -111,8 +134,10 @@ struct ScanResult {
   PointCloud model;                // turntable frame, normals outward, confidence and view id kept
   std::size_t merged_points = 0, outliers_removed = 0;
   OverlapSelectionCounts overlap;  // steep points replaced by a better view's
+  // Filled by session::StreamReconstruction::finish() (slscan_mesh), not by core.
   bool meshed = false;
   MeshResult mesh;
+  std::string mesh_error;                  // why the model was not meshed (bad cloud), when build_mesh was set
   std::map<std::string, double> stage_ms;  // wall time of each stage after the last frame
 };
 

@@ -21,6 +21,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -33,6 +34,8 @@ struct SequenceDescription {
   std::vector<std::string> files;           // one per plan pattern, in plan order, resolved paths
   int bit_depth = 8;                        // of the images' values: 8, 10, 12 or 16
   int camera_width = 0, camera_height = 0;  // 0: not stated (taken from the images)
+  // "calibration_keys": the calibration file's names for its entries (foreign_calibration.hpp).
+  std::map<std::string, std::string> calibration_keys;
 };
 
 // Parses the description; relative file names resolve against `base_dir`. Throws IoError
@@ -49,10 +52,20 @@ struct ImportedSequence {
   std::vector<std::vector<std::uint8_t>> frames;  // plan order; tightly packed, uint16 LE when bit_depth > 8
 };
 
+// Images already read, by path (grey, as read): `import --detect` reads each file once while it
+// tries many descriptions of the same images.
+struct ImageCache {
+  struct Image {
+    int width = 0, height = 0, depth = 0;  // depth: 8 or 16 (bits per sample as stored)
+    std::vector<std::uint8_t> bytes;       // tightly packed, uint16 LE for 16 bits
+  };
+  std::map<std::string, Image> images;
+};
+
 // Reads every image and checks it against the description and against each other: count,
 // size, bit depth, channels. Throws IoError saying what differs ("frameSeq_05.bmp is
 // 1600 x 1200, the description says 1688 x 1352").
-ImportedSequence read_image_sequence(const SequenceDescription& description);
+ImportedSequence read_image_sequence(const SequenceDescription& description, ImageCache* cache = nullptr);
 
 // Writes the sequence as a capture of one view (angle 0) of projector 0.
 void write_imported_capture(const std::string& path, const ImportedSequence& sequence);

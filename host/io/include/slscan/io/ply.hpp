@@ -44,10 +44,12 @@ struct PlyWriteOptions {
 // confidence (float), view_id (ushort).
 void write_ply(const std::string& path, const core::PointCloud& cloud, const PlyWriteOptions& options = {});
 
-// Writes a triangle mesh: vertices (with normals when given) and faces.
+// Writes a triangle mesh: vertices (with normals when given) and faces; `face_filled`, when not
+// empty, one flag per face written as the face property `uchar filled` (1: invented to close a
+// hole, docs/mesh.md).
 void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
                     const std::vector<Eigen::Vector3f>& normals, const std::vector<Eigen::Vector3i>& triangles,
-                    const PlyWriteOptions& options = {});
+                    const PlyWriteOptions& options = {}, const std::vector<std::uint8_t>& face_filled = {});
 
 // Binary STL of a triangle mesh (facet normals computed from the triangles).
 void write_stl(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,

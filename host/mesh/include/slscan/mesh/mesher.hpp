@@ -1,0 +1,33 @@
+// The surface mesher (docs/mesh.md): an implicit surface of the oriented points (IMLS, Gaussian
+// weights), sampled on a sparse OpenVDB level set around the points, meshed by volumeToMesh,
+// vertices projected onto the implicit surface, and trimmed to where the points are (raw) or
+// closed with CGAL's hole filling (watertight). Deterministic: the same cloud gives the same
+// mesh on any number of threads.
+#pragma once
+
+#include "slscan/core/mesh.hpp"
+#include "slscan/core/point_cloud.hpp"
+
+namespace slscan::mesh {
+
+// Needs points with one finite outward normal each. Throws std::invalid_argument naming what is
+// wrong (empty cloud, missing or non-finite normal at index i, too few points with neighbours).
+core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options = {});
+
+// Watertight closure of a raw mesh (consistently oriented triangles): border cycles closed with
+// CGAL, filled faces flagged in mesh.filled, self-intersecting fills undone. Updates stats.
+void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats);
+
+// CGAL's checks of a mesh (for reports and tests): closed 2-manifold (every triangle accepted
+// by a half-edge mesh, no border), self-intersecting face pairs, outward orientation.
+struct MeshCheck {
+  bool valid = false;  // every triangle accepted, CGAL::is_valid_polygon_mesh
+  std::size_t rejected_triangles = 0;
+  bool closed = false;
+  std::size_t self_intersections = 0;
+  bool outward = false;  // PMP::is_outward_oriented (closed meshes only)
+  double volume = 0;     // mm^3 (closed meshes only)
+};
+MeshCheck check_mesh(const core::TriangleMesh& mesh, bool count_self_intersections = true);
+
+}  // namespace slscan::mesh

@@ -1,0 +1,83 @@
+#include "slscan/session/stream_reconstruction.hpp"
+
+#include <chrono>
+
+#include "slscan/io/capture_replay.hpp"
+#include "slscan/io/ply.hpp"
+#include "slscan/mesh/mesher.hpp"
+
+namespace slscan::session {
+
+StreamReconstruction::StreamReconstruction(const slproto::RigCalibration& calibration,
+                                           const core::ReconstructionOptions& options)
+    : calibration_(calibration), options_(options) {}
+
+void StreamReconstruction::set_plan(const slproto::PatternPlan& plan) {
+  if (!(plan.config() == calibration_.pattern_plan))
+    throw io::IoError("the capture's pattern plan differs from the plan the calibration was made with: " +
+                      plan_differences(plan.config(), calibration_.pattern_plan) + " (capture " +
+                      describe_plan(plan.config()) + ", calibration " + describe_plan(calibration_.pattern_plan) + ")");
+  plan_ = plan;
+}
+
+void StreamReconstruction::add(const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
+  if (!plan_) throw io::IoError("a frame arrived before the scan request: the capture does not say its pattern plan");
+  if (!reconstructor_)
+    reconstructor_ = std::make_unique<core::ScanReconstructor>(calibration_, *plan_, static_cast<int>(header.width()),
+                                                               static_cast<int>(header.height()), options_);
+  reconstructor_->add_frame(io::frame_info(header), payload);
+  received_.push_back(header);
+  received_.back().clear_timing_events();
+}
+
+core::ScanResult StreamReconstruction::finish() {
+  if (!reconstructor_) throw io::IoError("the capture holds no frames");
+  core::ScanResult result = reconstructor_->finish();
+  // The mesh step (slscan_mesh): here rather than in core, which does not link OpenVDB. A cloud
+  // the mesher refuses leaves the model and the reports as they are, with the reason.
+  const auto start = std::chrono::steady_clock::now();
+  if (options_.build_mesh && result.model.has_normals() && result.model.size() >= 100) {
+    try {
+      result.mesh = mesh::build_mesh(result.model, options_.mesh);
+      result.meshed = true;
+    } catch (const std::invalid_argument& e) {
+      result.mesh_error = e.what();
+    }
+  }
+  result.stage_ms["mesh"] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+std::string plan_differences(const slproto::PatternPlanConfig& capture, const slproto::PatternPlanConfig& calib) {
+  std::string out;
+  auto field = [&](const char* name, const std::string& a, const std::string& b) {
+    if (a == b) return;
+    out += (out.empty() ? "" : "; ") + std::string(name) + " " + a + " in the capture, " + b + " in the calibration";
+  };
+  auto yes_no = [](bool v) { return std::string(v ? "true" : "false"); };
+  field("projector_width", std::to_string(capture.projector_width), std::to_string(calib.projector_width));
+  field("projector_height", std::to_string(capture.projector_height), std::to_string(calib.projector_height));
+  field("axis", slproto::coding_axis_name(capture.axis), slproto::coding_axis_name(calib.axis));
+  field("period_px", std::to_string(capture.period_px), std::to_string(calib.period_px));
+  field("phase_steps", std::to_string(capture.phase_steps), std::to_string(calib.phase_steps));
+  field("complementary_bit", yes_no(capture.complementary_bit), yes_no(calib.complementary_bit));
+  field("with_white_black", yes_no(capture.with_white_black), yes_no(calib.with_white_black));
+  field("inverse_gray", yes_no(capture.inverse_gray), yes_no(calib.inverse_gray));
+  field("gray_low_bits", slproto::gray_low_bits_name(capture.gray_low_bits),
+        slproto::gray_low_bits_name(calib.gray_low_bits));
+  field("phase_offset_rad", std::to_string(capture.phase_offset_rad), std::to_string(calib.phase_offset_rad));
+  field("phase_offset_steps", std::to_string(capture.phase_offset_steps), std::to_string(calib.phase_offset_steps));
+  return out;
+}
+
+std::string describe_plan(const slproto::PatternPlanConfig& c) {
+  return std::to_string(c.projector_width) + "x" + std::to_string(c.projector_height) + " " +
+         slproto::coding_axis_name(c.axis) + " P=" + std::to_string(c.period_px) +
+         " N=" + std::to_string(c.phase_steps) + (c.complementary_bit ? " +complementary" : "") +
+         (c.with_white_black ? "" : " -white/black") + (c.inverse_gray ? " +inverse" : "") +
+         (c.gray_low_bits == slproto::GrayLowBits::centre
+              ? ""
+              : std::string(" ") + slproto::gray_low_bits_name(c.gray_low_bits));
+}
+
+}  // namespace slscan::session

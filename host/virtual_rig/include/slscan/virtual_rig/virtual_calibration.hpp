@@ -1,0 +1,50 @@
+// A calibration capture of the virtual rig (slrig::calibration_poses), rendered in memory in
+// the layout calibrate_rig reads, with the truth every figure is checked against. Used by
+// `slscan demo` (which calibrates before it scans), `slscan calibrate --virtual`, the
+// calibration test and bench/rig/bench_calibrated_ballbar.
+#pragma once
+
+#include <array>
+#include <string>
+#include <vector>
+
+#include "slproto/calibration.hpp"
+#include "slscan/core/calibration_rig.hpp"
+
+namespace slrig {
+struct Scene;
+}
+
+namespace slscan::virtual_rig {
+
+struct VirtualCalibrationCapture {
+  core::CalibrationCapture capture;
+  slproto::RigCalibration truth;                        // the rig's exact calibration
+  std::vector<slproto::RigidTransform> cam_from_board;  // per pose, the board's true pose
+  std::vector<double> actual_table_deg;                 // per turntable pose, the angle the table reached
+};
+
+// Renders every pose of `calibration_scene` (scene_preset("calibration", size)): free poses
+// with each projector's plan along columns and rows, turntable poses as one image of both
+// projectors' white. The turntable misses each commanded angle by a random
+// N(0, table_angle_sigma_deg) (a table that does not quite do as told).
+VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene& calibration_scene,
+                                                             const std::string& source,
+                                                             double table_angle_sigma_deg = 0.05);
+
+// The calibration's errors against the truth, in the terms (docs/calibration.md).
+struct CalibrationErrors {
+  double camera_fx_pct = 0, camera_fy_pct = 0, camera_cx_px = 0, camera_cy_px = 0, camera_rms_px = 0;
+  struct Projector {
+    double fx_pct = 0, fy_pct = 0, cx_px = 0, cy_px = 0, translation_mm = 0, rotation_deg = 0, rms_px = 0;
+  };
+  std::array<Projector, 2> projectors;
+  double axis_direction_deg = 0;
+  double axis_position_mm = 0;  // the true platform centre's distance from the fitted axis
+  double plane_mm = 0;          // the true platform centre's height above the fitted plane
+  double worst_step_error_deg = 0;
+  std::string table() const;  // one line per figure, for benches and tests
+};
+CalibrationErrors calibration_errors(const core::RigCalibrationResult& result, const VirtualCalibrationCapture& truth);
+
+}  // namespace slscan::virtual_rig
