@@ -1,9 +1,9 @@
 // The mesh against the virtual rig's truth (issue 19, docs/mesh.md): each scene is rendered,
-// reconstructed (exact calibration, 6 views), and its model meshed by the old grid Poisson
-// (core::poisson_mesh) and by slscan_mesh (raw and watertight). Every model point and mesh
+// reconstructed (exact calibration, 6 views), and its model meshed by slscan_mesh (raw and
+// watertight). Every model point and mesh
 // vertex is compared with the truth's surface samples (0.05 mm apart): distance along the
 // nearest sample's normal; faces whose normal is more than 10 deg off the nearest sample's.
-//   bench_mesh [--size small|full] [--scenes ballbar,sphere,blade,teacup] [--cache DIR] [--no-poisson]
+//   bench_mesh [--size small|full] [--scenes ballbar,sphere,blade,teacup] [--cache DIR]
 // --cache keeps each scene's model (PLY, rig frame) so that a second run meshes only.
 #include <sys/resource.h>
 
@@ -167,21 +167,18 @@ void row(const std::string& scene, const std::string& mesher, const Figures& f, 
 int main(int argc, char** argv) {
   std::string size_name = "small", cache;
   std::vector<std::string> scenes{"ballbar", "sphere", "blade", "teacup"};
-  bool poisson = true;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg == "--size" && i + 1 < argc) {
       size_name = argv[++i];
     } else if (arg == "--cache" && i + 1 < argc) {
       cache = argv[++i];
-    } else if (arg == "--no-poisson") {
-      poisson = false;
     } else if (arg == "--scenes" && i + 1 < argc) {
       scenes.clear();
       std::stringstream list(argv[++i]);
       for (std::string s; std::getline(list, s, ',');) scenes.push_back(s);
     } else {
-      std::fprintf(stderr, "usage: bench_mesh [--size small|full] [--scenes a,b] [--cache DIR] [--no-poisson]\n");
+      std::fprintf(stderr, "usage: bench_mesh [--size small|full] [--scenes a,b] [--cache DIR]\n");
       return 2;
     }
   }
@@ -217,12 +214,6 @@ int main(int argc, char** argv) {
     const Figures points = distances(model.points, truth);
     std::printf("| %s | points (%zu) | %.1f / %.0f | | | %zu | | |\n", name.c_str(), model.size(), points.rms_um,
                 points.p99_um, points.far);
-    if (poisson) {
-      const auto t0 = Clock::now();
-      const auto old = slscan::core::poisson_mesh(model, {});
-      row(name, "grid Poisson 128", mesh_figures(old.mesh, truth), ms_since(t0), old.mesh.triangles.size(),
-          "cell " + std::to_string(old.cell_mm));
-    }
     for (const auto mode : {slscan::core::MeshMode::raw, slscan::core::MeshMode::watertight}) {
       slscan::core::MeshOptions options;
       options.mode = mode;

@@ -1,8 +1,6 @@
-// Surface reconstruction (pipeline stage 6): screened Poisson on a regular grid. The oriented
-// points define a vector field (the smoothed gradient of the object's indicator function); the
-// indicator chi solves the screened Poisson equation, chi is pulled toward the iso value at the
-// samples, and its iso-surface is extracted by marching tetrahedra on the Freudenthal split of
-// the grid, which gives a closed, consistently oriented mesh (no ambiguous cases to resolve).
+// Surface reconstruction (pipeline stage 6): the mesh type, the mesher's options and results, and
+// a topology check. The mesher itself is slscan_mesh (host/mesh, docs/mesh.md), kept out of core
+// so that slscan_core does not link OpenVDB or CGAL.
 #pragma once
 
 #include <Eigen/Core>
@@ -66,34 +64,13 @@ struct MeshStats {
   double mesh_ms = 0;  // meshing alone (wall)
 };
 
-struct PoissonOptions {
-  int resolution = 128;           // grid cells along the longest side of the padded bounds
-  double padding_ratio = 0.1;     // empty margin around the points, as a fraction of their extent
-  double screening_weight = 4.0;  // alpha: how hard chi is pulled to the iso value at the samples
-  int area_neighbors = 8;         // k of the k-NN estimate of each sample's surface area
-  int max_cg_iterations = 2000;
-  double cg_tolerance = 1e-7;  // relative residual |r| / |b|
-  // Triangles with a vertex whose (smoothed) sample density is below this fraction of the
-  // median density at the samples are dropped: removes surface invented far from the data (the
-  // result is then open there). 0 keeps the closed surface.
-  double density_trim_ratio = 0.0;
-};
-
 struct MeshResult {
   TriangleMesh mesh;
-  std::array<int, 3> grid_nodes{0, 0, 0};
-  double cell_mm = 0;
-  double iso_value = 0;
-  int cg_iterations = 0;
-  double cg_relative_residual = 0;
-  std::size_t trimmed_triangles = 0;
+  double cell_mm = 0;                 // the level set's voxel
+  std::size_t trimmed_triangles = 0;  // farther than trim_factor from every point (raw's trimming)
   MeshMode mode = MeshMode::raw;
   MeshStats stats;  // the level-set mesher's (slscan_mesh)
 };
-
-// Needs a cloud with one finite, unit-ish outward normal per point (pca_normals). Throws
-// std::invalid_argument on bad input, std::runtime_error if the solver fails.
-MeshResult poisson_mesh(const PointCloud& cloud, const PoissonOptions& options = {});
 
 struct MeshTopology {
   std::size_t edges = 0;
