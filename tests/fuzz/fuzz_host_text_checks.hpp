@@ -71,7 +71,7 @@ inline void check_foreign_calibration(const std::uint8_t* data, std::size_t size
     slscan::io::ForeignCalibrationOptions options;
     options.projector_width = 1824;
     options.projector_height = 1140;
-    const auto calibration = slscan::io::read_foreign_calibration(path, options);
+    const auto calibration = slscan::io::read_foreign_calibration_in_process(path, options);
     if (auto status = calibration.check(); !status) fuzz_fail("an accepted foreign calibration fails check()");
   });
 }

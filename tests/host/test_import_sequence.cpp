@@ -470,4 +470,68 @@ TEST_F(Import, ForeignImageSizesAreRefusedNotWrapped) {
   }
 }
 
+// docs/security.md fuzz finding 12: OpenCV's FileStorage hangs on some malformed YAML and
+// allocates what a file declares. The parser runs in a child process with a CPU and memory
+// budget; the result is exactly the in-process parser's.
+TEST_F(Import, ForeignCalibrationParserRunsInABoundedChildProcess) {
+  const std::string path = (dir_ / "stereo.yml").string();
+  {
+    cv::FileStorage fs(path, cv::FileStorage::WRITE);
+    fs << "K1" << (cv::Mat_<double>(3, 3) << 1000.125, 0, 320.3, 0, 1001.7, 240.1, 0, 0, 1);
+    fs << "D1" << (cv::Mat_<double>(1, 5) << -0.1, 0.01, 1e-3, -2e-4, 0.3);
+    fs << "K2" << (cv::Mat_<double>(3, 3) << 1200, 0, 400, 0, 1200, 300, 0, 0, 1);
+    fs << "D2" << (cv::Mat_<double>(1, 4) << 0.05, 0, 0, 0);
+    fs << "R" << (cv::Mat_<double>(3, 1) << 0.01, 0.3, -0.02);
+    fs << "T" << (cv::Mat_<double>(3, 1) << -100.3, 0.7, 10.1);
+    fs << "image_width" << 640 << "image_height" << 480 << "projector_width" << 800 << "projector_height" << 600;
+  }
+  EXPECT_EQ(io::read_foreign_calibration(path), io::read_foreign_calibration_in_process(path));
+
+  auto error_of = [](const std::string& file, const io::ForeignCalibrationOptions& options) {
+    try {
+      io::read_foreign_calibration(file, options);
+    } catch (const io::IoError& e) {
+      return std::string(e.what());
+    }
+    return std::string("(no error)");
+  };
+  // The parser's own errors come back unchanged.
+  const std::string missing = (dir_ / "missing.yml").string();
+  EXPECT_EQ(error_of(missing, {}), missing + ": cannot open the calibration file");
+
+  // The fuzz input's first byte picks the extension (1: .yaml); the file is the rest.
+  const std::string hang = (dir_ / "hang.yaml").string();
+  {
+    std::ifstream in(SLSCAN_SOURCE_DIR "/tests/fuzz/known-hangs/foreign_calibration-timeout-6929d328",
+                     std::ios::binary);
+    const std::string input{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+    ASSERT_EQ(input.at(0) % 4, 1);
+    std::ofstream(hang, std::ios::binary) << input.substr(1);
+  }
+  io::ForeignCalibrationOptions one_second;
+  one_second.parser_cpu_seconds = 1;
+  const std::string hung = error_of(hang, one_second);
+  EXPECT_NE(hung.find("foreign calibration " + hang + ": the parser did not finish within 1 s of CPU time"),
+            std::string::npos)
+      << hung;
+
+#if !defined(__SANITIZE_ADDRESS__)  // sanitizer builds set no address-space limit (ASan's shadow)
+  // 16 MB of text against a 4 MB budget: reading it is already too much.
+  const std::string big = (dir_ / "big.yml").string();
+  {
+    std::ofstream out(big);
+    out << "%YAML:1.0\n---\nK1: \"" << std::string(16 << 20, 'x') << "\"\n";
+  }
+  io::ForeignCalibrationOptions small;
+  small.parser_memory_mb = 4;
+  const std::string memory = error_of(big, small);
+  EXPECT_NE(memory.find("foreign calibration " + big + ": the parser needed more than 4 MB of memory"),
+            std::string::npos)
+      << memory;
+  const std::string read = error_of(big, {});
+  EXPECT_EQ(read, big + ": not an OpenCV FileStorage, ROS camera_info or Kalibr YAML file, nor our JSON calibration")
+      << "within the default budget the same file is read (and refused by OpenCV)";
+#endif
+}
+
 }  // namespace

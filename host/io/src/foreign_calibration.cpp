@@ -1,8 +1,20 @@
 #include "slscan/io/foreign_calibration.hpp"
 
+#include <fcntl.h>
+#include <poll.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <cctype>
+#include <cerrno>
+#include <chrono>
 #include <cmath>
+#include <csignal>
+#include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <limits>
 #include <opencv2/calib3d.hpp>
@@ -547,19 +559,194 @@ slproto::RigCalibration read_any(const std::string& path, const ForeignCalibrati
 
 }  // namespace
 
-slproto::RigCalibration read_foreign_calibration(const std::string& path, const ForeignCalibrationOptions& options) {
+slproto::RigCalibration read_foreign_calibration_in_process(const std::string& path,
+                                                            const ForeignCalibrationOptions& options) {
   // OpenCV's FileNode asserts (cv::Exception) when an entry has another shape than asked for (a
   // scalar where a map or matrix must be: "cam0: 1"): bad input, named with the file (found by
   // fuzz_foreign_calibration), not an internal error.
   try {
     return read_any(path, options);
   } catch (const cv::Exception& e) {
+    if (e.code == cv::Error::StsNoMem) throw std::bad_alloc();
     throw IoError(path + ": an entry does not have the shape a calibration needs (OpenCV: " + e.err + " in " + e.func +
                   ")");
   } catch (const std::length_error&) {
     // OpenCV's YAML parser computes a string length from some malformed inputs and lets the
     // resulting std::length_error through (found by fuzz_foreign_calibration in CI).
     throw IoError(path + ": OpenCV could not parse the file (malformed YAML/XML structure)");
+  }
+}
+
+namespace {
+
+// The child's reply on the pipe: one tag byte, then the calibration as our JSON or the message.
+enum Reply : char {
+  reply_calibration = 'C',
+  reply_bad_input = 'E',
+  reply_invalid_argument = 'A',
+  reply_out_of_memory = 'M',
+  reply_internal = 'X'
+};
+
+// ASan reserves terabytes of address space up front and maps its shadow lazily; an address-space
+// limit there ends the sanitizer, not the parser. Sanitizer builds keep the CPU limit only.
+#if defined(__SANITIZE_ADDRESS__)
+constexpr bool kAddressSpaceLimit = false;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+constexpr bool kAddressSpaceLimit = false;
+#else
+constexpr bool kAddressSpaceLimit = true;
+#endif
+#else
+constexpr bool kAddressSpaceLimit = true;
+#endif
+
+// This process's address space in bytes (the first field of /proc/self/statm, in pages); 0 if
+// unknown.
+std::uint64_t address_space_bytes() {
+  std::ifstream statm("/proc/self/statm");
+  std::uint64_t pages = 0;
+  if (!(statm >> pages)) return 0;
+  return pages * static_cast<std::uint64_t>(sysconf(_SC_PAGESIZE));
+}
+
+void write_all(int fd, const std::string& bytes) {
+  std::size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return;  // the parent is gone: nobody to tell
+    done += static_cast<std::size_t>(n);
+  }
+}
+
+// The child: limits, parse, reply, _exit (never the parent's atexit handlers, static destructors
+// or stdio buffers).
+[[noreturn]] void run_parser_child(int fd, const std::string& path, const ForeignCalibrationOptions& options) {
+  std::signal(SIGINT, SIG_DFL);  // Ctrl-C ends the parse at once; the parent reports it
+  std::signal(SIGTERM, SIG_DFL);
+  const rlimit no_core{0, 0};
+  setrlimit(RLIMIT_CORE, &no_core);
+  const auto cpu = static_cast<rlim_t>(options.parser_cpu_seconds);
+  const rlimit cpu_limit{cpu, cpu + 1};  // SIGXCPU at the soft limit, SIGKILL a second later
+  setrlimit(RLIMIT_CPU, &cpu_limit);
+  if (kAddressSpaceLimit) {
+    const std::uint64_t now = address_space_bytes();
+    if (now > 0) {
+      const auto limit = static_cast<rlim_t>(now + static_cast<std::uint64_t>(options.parser_memory_mb) * 1024 * 1024);
+      const rlimit memory{limit, limit};
+      setrlimit(RLIMIT_AS, &memory);
+    }
+  }
+  try {
+    std::string reply;
+    try {
+      reply = static_cast<char>(reply_calibration) +
+              slproto::format_calibration(read_foreign_calibration_in_process(path, options));
+    } catch (const IoError& e) {
+      reply = static_cast<char>(reply_bad_input) + std::string(e.what());
+    } catch (const std::invalid_argument& e) {
+      reply = static_cast<char>(reply_invalid_argument) + std::string(e.what());
+    } catch (const std::bad_alloc&) {
+      reply = static_cast<char>(reply_out_of_memory);
+    } catch (const std::exception& e) {
+      reply = static_cast<char>(reply_internal) + std::string(e.what());
+    }
+    write_all(fd, reply);
+  } catch (...) {
+    _exit(3);
+  }
+  _exit(0);
+}
+
+// Reads `fd` to its end, or until `deadline`; true when the end was reached.
+bool read_to_end(int fd, std::string& out, std::chrono::steady_clock::time_point deadline) {
+  char buffer[65536];
+  for (;;) {
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) return false;
+    pollfd p{fd, POLLIN, 0};
+    const int ready = ::poll(&p, 1, static_cast<int>(std::min<std::int64_t>(left.count(), 1000)));
+    if (ready < 0 && errno != EINTR) return false;
+    if (ready <= 0) continue;
+    const ssize_t n = ::read(fd, buffer, sizeof buffer);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return true;
+    out.append(buffer, static_cast<std::size_t>(n));
+  }
+}
+
+}  // namespace
+
+slproto::RigCalibration read_foreign_calibration(const std::string& path, const ForeignCalibrationOptions& options) {
+  const std::string what = "foreign calibration " + path;
+  if (options.parser_cpu_seconds < 1 || options.parser_memory_mb < 1)
+    throw std::invalid_argument(what + ": the parser's CPU and memory budgets must be positive");
+  int fds[2];
+  if (::pipe2(fds, O_CLOEXEC) != 0)
+    throw IoError(what + ": cannot start the parser process (pipe: " + std::strerror(errno) + ")");
+  const pid_t pid = ::fork();
+  if (pid < 0) {
+    const int error = errno;
+    ::close(fds[0]);
+    ::close(fds[1]);
+    throw IoError(what + ": cannot start the parser process (fork: " + std::strerror(error) + ")");
+  }
+  if (pid == 0) {
+    ::close(fds[0]);
+    run_parser_child(fds[1], path, options);
+  }
+  ::close(fds[1]);
+  // A CPU-bound hang ends at the CPU limit; the wall-clock deadline covers a child that sleeps
+  // (it cannot in the parser, but a lock held by another thread at fork could) and a busy machine.
+  const int wall_seconds = 4 * options.parser_cpu_seconds + 10;
+  std::string reply;
+  const bool finished =
+      read_to_end(fds[0], reply, std::chrono::steady_clock::now() + std::chrono::seconds(wall_seconds));
+  ::close(fds[0]);
+  if (!finished) ::kill(pid, SIGKILL);
+  int status = 0;
+  rusage usage{};
+  while (::wait4(pid, &status, 0, &usage) < 0 && errno == EINTR) {
+  }
+  const double cpu_s = static_cast<double>(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+                       1e-6 * static_cast<double>(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+  const std::string cpu_limit = std::to_string(options.parser_cpu_seconds);
+  if (!finished)
+    throw IoError(what + ": the parser did not finish within " + std::to_string(wall_seconds) +
+                  " s (wall clock; it used " + cv::format("%.1f", cpu_s) + " s of CPU): not a file it can read");
+  if (WIFSIGNALED(status)) {
+    const int signal_number = WTERMSIG(status);
+    if (signal_number == SIGXCPU || (signal_number == SIGKILL && cpu_s >= options.parser_cpu_seconds))
+      throw IoError(what + ": the parser did not finish within " + cpu_limit +
+                    " s of CPU time (OpenCV's FileStorage hangs on some malformed YAML; docs/security.md): not a file "
+                    "it can read");
+    if (signal_number == SIGINT) throw IoError(what + ": the parser was interrupted (SIGINT)");
+    throw IoError(what + ": the parser crashed on this file (signal " + std::to_string(signal_number) + ", " +
+                  strsignal(signal_number) + "): malformed input OpenCV's FileStorage cannot read");
+  }
+  if (reply.empty())
+    throw IoError(what + ": the parser ended without a result (exit status " +
+                  std::to_string(WIFEXITED(status) ? WEXITSTATUS(status) : -1) + ")");
+  const std::string message = reply.substr(1);
+  switch (reply.front()) {
+    case reply_calibration: {
+      auto calibration = slproto::parse_calibration(message, path);
+      if (!calibration.ok())
+        throw std::runtime_error(what + ": the parser's result does not read back: " + calibration.error().message);
+      return *calibration;
+    }
+    case reply_bad_input:
+      throw IoError(message);
+    case reply_invalid_argument:
+      throw std::invalid_argument(message);
+    case reply_out_of_memory:
+      throw IoError(what + ": the parser needed more than " + std::to_string(options.parser_memory_mb) +
+                    " MB of memory (its limit): a file declaring huge sizes, not a calibration");
+    default:
+      throw std::runtime_error(what + ": " + message);
   }
 }
 

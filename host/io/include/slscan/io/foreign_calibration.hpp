@@ -63,12 +63,25 @@ struct ForeignCalibrationOptions {
   // error.
   int camera_width = 0, camera_height = 0;
   int projector_width = 0, projector_height = 0;
+  // The parser's budget. OpenCV's FileStorage hangs on some malformed YAML and allocates what a
+  // file declares (docs/security.md, fuzz findings 11-12): the files are parsed in a child
+  // process limited to this much CPU time and this much address space beyond the parent's; a
+  // hang, a crash or an exhausted budget there is an IoError naming the file.
+  int parser_cpu_seconds = 3;
+  int parser_memory_mb = 1024;
 };
 
 // Reads `path` (format chosen by content: JSON with "format_version" is ours, anything else
-// goes through cv::FileStorage). Throws IoError naming the file and the missing or bad entry.
+// goes through cv::FileStorage) in a child process within options' CPU and memory budget; the
+// result is passed back as our JSON calibration (exactly what the parser built). Throws
+// IoError naming the file and the missing or bad entry, or what ended the parser.
 slproto::RigCalibration read_foreign_calibration(const std::string& path,
                                                  const ForeignCalibrationOptions& options = {});
+
+// The same parser in this process, without the budget: what the child runs, and what the fuzz
+// target calls (coverage is only seen in-process). Never call it on untrusted files elsewhere.
+slproto::RigCalibration read_foreign_calibration_in_process(const std::string& path,
+                                                            const ForeignCalibrationOptions& options = {});
 
 // The placeholder turntable of a rig without one (see above).
 slproto::TurntableCalibration placeholder_turntable();
