@@ -200,6 +200,11 @@ TEST(SceneFile, PresetWithOverridesAndErrorsNamingTheField) {
   expect_error(R"({"view_angles_deg": [0, "x"]})", "view_angles_deg");
   expect_error(R"({"objects": [)", "bad.json");
   expect_error(R"({"format_version": 2})", "format_version");
+  // 2^64 - 1 and 2^63 were read as -1 and INT64_MIN (wrapped), then passed the range check.
+  expect_error(R"({"sensor": {"bit_depth": 18446744073709551615}})",
+               "sensor.bit_depth: 18446744073709551615 is out of range");
+  expect_error(R"({"camera": {"width": 9223372036854775808}})", "camera.width: 9223372036854775808 is out of range");
+  expect_error(R"({"interreflection_samples": -9223372036854775808})", "interreflection_samples");
   auto missing = load_scene("/nonexistent/scene.json");
   ASSERT_FALSE(missing.ok());
   EXPECT_NE(missing.error().message.find("/nonexistent/scene.json"), std::string::npos);

@@ -1,6 +1,7 @@
 // Scene files (JSON). Every field is optional over a base (a preset, or the default rig with no
 // objects); unknown keys and wrong types are errors that name the field.
 #include <cmath>
+#include <cstdint>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <numbers>
@@ -50,9 +51,14 @@ class Reader {
   void integer(const std::string& key, int& out) {
     if (const json* v = get(key)) {
       if (!v->is_number_integer()) throw ParseError{where(key) + "expected an integer"};
-      const auto value = v->get<long long>();
-      if (value < -1000000000LL || value > 1000000000LL) throw ParseError{where(key) + "integer out of range"};
-      out = static_cast<int>(value);
+      // A value past INT64_MAX is stored unsigned; read as long long it would wrap (2^64 - 1 is
+      // -1), so the unsigned one is compared as such.
+      const bool in_range = v->is_number_unsigned()
+                                ? v->get<std::uint64_t>() <= 1000000000ULL
+                                : v->get<long long>() >= -1000000000LL && v->get<long long>() <= 1000000000LL;
+      if (!in_range)
+        throw ParseError{where(key) + v->dump() + " is out of range (an integer from -1000000000 to 1000000000)"};
+      out = static_cast<int>(v->get<long long>());
     }
   }
   void boolean(const std::string& key, bool& out) {
