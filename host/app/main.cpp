@@ -1,11 +1,12 @@
 // slscan: the host command. A thin table of subcommands over the run_* functions.
-#include <CLI/CLI.hpp>
-#include <new>
 #include <oneapi/tbb/global_control.h>
+
+#include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <iostream>
+#include <new>
 #include <optional>
 #include <string>
 #include <vector>
@@ -444,6 +445,12 @@ static int run_command_line(int argc, char** argv) {
   } catch (const DeviceError& e) {
     std::cerr << "slscan: " << e.what() << "\n";
     return exit_device;
+  } catch (const ResourceError& e) {
+    std::cerr << "slscan: " << e.what() << "\n";
+    return exit_resources;
+  } catch (const std::bad_alloc&) {
+    std::cerr << "slscan: out of memory (" << memory_situation() << ")\n";
+    return exit_resources;
   } catch (const std::filesystem::filesystem_error& e) {
     // A folder or file the command was told to use and cannot (a file where a folder should be,
     // no permission, a full disk): the user's to fix, named with its path.

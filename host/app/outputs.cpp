@@ -5,6 +5,7 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
+#include <new>
 #include <numbers>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -517,6 +518,9 @@ OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& r
   OutputFiles staged;
   try {
     staged = write_set(stage.string(), result, std::move(report));
+  } catch (const std::bad_alloc&) {
+    fs::remove_all(stage, error);  // out of memory is the caller's to report (exit_resources)
+    throw;
   } catch (const std::exception& e) {
     fs::remove_all(stage, error);
     throw io::IoError("writing the outputs into " + out.string() + " failed: " + e.what() +

@@ -1,5 +1,6 @@
 #include "run.hpp"
 
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -9,7 +10,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
+#include <new>
 #include <nlohmann/json.hpp>
 
 #include "config.hpp"
@@ -195,13 +198,63 @@ void Console::end_progress() const {
   if (!quiet && !json_log && ::isatty(STDERR_FILENO)) std::cerr << "\n";
 }
 
+namespace {
+
+// The number after `key` in a /proc file of "key: value kB" lines, in bytes; 0 if not found.
+std::uint64_t proc_kilobytes(const char* file, const std::string& key) {
+  std::ifstream in(file);
+  std::string line;
+  while (std::getline(in, line))
+    if (line.compare(0, key.size(), key) == 0) return std::strtoull(line.c_str() + key.size(), nullptr, 10) * 1024;
+  return 0;
+}
+
+std::string mib(std::uint64_t bytes) { return std::to_string(bytes >> 20) + " MiB"; }
+
+}  // namespace
+
+std::string memory_situation() {
+  std::string out;
+  const std::uint64_t peak = proc_kilobytes("/proc/self/status", "VmPeak:");
+  rlimit limit{};
+  const bool limited = ::getrlimit(RLIMIT_AS, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY;
+  if (peak > 0) out = "address space peaked at " + mib(peak);
+  if (limited)
+    out += (out.empty() ? "the address-space limit is " : " of its ") + mib(limit.rlim_cur) + " limit (ulimit -v)";
+  if (const std::uint64_t available = proc_kilobytes("/proc/meminfo", "MemAvailable:"); available > 0)
+    out += (out.empty() ? "" : "; ") + mib(available) + " of RAM available";
+  return out.empty() ? "no figures available" : out;
+}
+
+namespace {
+
+// Out of memory while reprocessing: the stage, the figures, and that nothing was written.
+[[noreturn]] void throw_out_of_memory(const ReprocessRequest& request, const std::string& stage) {
+  throw ResourceError("reprocess " + request.capture_path + ": out of memory in the reconstruction's " + stage +
+                      " stage (" + memory_situation() + "); nothing was written to " + request.output_dir +
+                      " (raise the limit, or reprocess on a machine with more memory)");
+}
+
+}  // namespace
+
 int run_reprocess(const ReprocessRequest& request, const Console& console) {
   const auto start = Clock::now();
   const slproto::RigCalibration calibration = load_calibration_or_throw(request.calibration_path);
   const core::ReconstructionOptions options = options_from(request.config_path);
   prepare_output_folder(request.output_dir, "reprocess --out", false);
-  const session::ReprocessResult replayed =
-      session::reprocess_capture(request.capture_path, calibration, options, ConsoleLog(console));
+  session::ReprocessResult replayed;
+  try {
+    replayed =
+        session::reprocess_capture(request.capture_path, calibration, options, ConsoleLog(console), &interrupted);
+  } catch (const core::ReconstructionInterrupted& e) {
+    console.warn("interrupted (Ctrl-C) before the reconstruction's " + e.stage() + " stage: nothing was written to " +
+                 request.output_dir);
+    return exit_interrupted;
+  } catch (const core::ReconstructionOutOfMemory& e) {
+    throw_out_of_memory(request, e.stage());
+  } catch (const std::bad_alloc&) {
+    throw_out_of_memory(request, "reprocess");
+  }
 
   json report = provenance(options, calibration, request.calibration_path);
   report["capture"] = {{"file", request.capture_path},
@@ -211,7 +264,12 @@ int run_reprocess(const ReprocessRequest& request, const Console& console) {
   report["capture"]["missing"] = replayed.missing;
   if (replayed.summary.done) report["camera_link"] = camera_link_json(*replayed.summary.done, console);
   check_not_empty(replayed.reconstruction, request.capture_path, "");
-  const OutputFiles files = write_scan_outputs(request.output_dir, replayed.reconstruction, report);
+  OutputFiles files;
+  try {
+    files = write_scan_outputs(request.output_dir, replayed.reconstruction, report);
+  } catch (const std::bad_alloc&) {
+    throw_out_of_memory(request, "writing the outputs");
+  }
   print_summary(console, replayed.reconstruction, files, seconds_since(start));
   return report_self_checks(console, replayed.reconstruction);
 }
@@ -276,7 +334,20 @@ int run_scan(const ScanCommand& command, const Console& console) {
   request.capture_path = (std::filesystem::path(command.output_dir) / "capture.slcap").string();
   request.compress = command.compress;
 
-  const session::LiveScanResult scan = session::run_live_scan(request, calibration, options, ConsoleLog(console));
+  session::LiveScanResult scan;
+  try {
+    scan = session::run_live_scan(request, calibration, options, ConsoleLog(console));
+  } catch (const core::ReconstructionInterrupted& e) {
+    // After the last frame: the capture is complete, only the model is not built.
+    console.warn("interrupted (Ctrl-C) before the reconstruction's " + e.stage() +
+                 " stage: the complete capture is in " + request.capture_path +
+                 " (no model written); slscan reprocess reconstructs it");
+    return exit_interrupted;
+  } catch (const core::ReconstructionOutOfMemory& e) {
+    throw ResourceError("scan: out of memory in the reconstruction's " + e.stage() + " stage (" + memory_situation() +
+                        "); the complete capture is in " + request.capture_path +
+                        " (no model written): slscan reprocess with more memory reconstructs it");
+  }
   if (scan.aborted) {
     console.warn("interrupted: kept all " + std::to_string(scan.frames) + " frames received (of " +
                  std::to_string(scan.frames_expected) + " planned) in " + request.capture_path +

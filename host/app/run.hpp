@@ -26,8 +26,20 @@ enum ExitCode : int {
   exit_inconsistent = 6,      // the data contradicts its description (the decoder's self-checks: docs/real-data.md)
   exit_out_of_tolerance = 7,  // measured, but a figure is outside its stated MPE (FAIL)
   exit_unmatched = 8,         // compare: fewer than --min-matched of the measured points matched the reference
+  exit_resources = 9,         // out of memory: the stage, the memory peak, limit and what was available are named
   exit_interrupted = 130      // Ctrl-C
 };
+
+// The machine's resources did not suffice (memory): exit_resources, not an internal error.
+class ResourceError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// What memory looked like after an allocation failed, for its message: the process's peak
+// address space, its limit (ulimit -v) and the RAM available, each when known
+// ("address space peaked at 1019 MiB of its 1024 MiB limit (ulimit -v); 5120 MiB of RAM available").
+std::string memory_situation();
 
 // Thrown for problems with the scanner itself (connection, protocol, board errors).
 using session::DeviceError;

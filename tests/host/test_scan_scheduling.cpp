@@ -9,9 +9,11 @@
 #if __has_include("slrig/rig.hpp")
 #include <tbb/task_arena.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdlib>
 #include <future>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -73,7 +75,8 @@ std::vector<Frame> interleaved(int views) {
   return order;
 }
 
-std::vector<std::vector<Eigen::Vector3f>> reconstruct(const std::vector<Frame>& order, int max_pending) {
+std::vector<std::vector<Eigen::Vector3f>> reconstruct(const std::vector<Frame>& order, int max_pending,
+                                                      const std::atomic<bool>* stop = nullptr) {
   const Frames& f = frames();
   slscan::core::ReconstructionOptions options;
   options.register_views = false;
@@ -92,7 +95,7 @@ std::vector<std::vector<Eigen::Vector3f>> reconstruct(const std::vector<Frame>& 
     reconstructor.add_frame(
         info, std::as_bytes(std::span(f.by_side[static_cast<std::size_t>(frame.projector)][frame.pattern])));
   }
-  const slscan::core::ScanResult result = reconstructor.finish();
+  const slscan::core::ScanResult result = reconstructor.finish(stop);
   std::vector<std::vector<Eigen::Vector3f>> points;
   for (const auto& products : result.view_products) points.push_back(products.points.points);
   return points;
@@ -136,6 +139,26 @@ TEST(ScanScheduling, InterleavedProjectorViewsBeyondTheBoundComplete) {
       return arena.execute([&] { return reconstruct(interleaved(2), 1); });  // 4 receiving at once, 1 decoder
     });
     EXPECT_TRUE(points == reference) << threads << " thread(s)";
+  }
+}
+
+// Ctrl-C after the last frame (issue 17): finish() honours the stop flag at its next stage
+// boundary, names the stage, and the reconstructor is torn down with its queued work dropped.
+TEST(ScanScheduling, FinishStopsAtAStageBoundaryWhenAsked) {
+  const std::atomic<bool> stop{true};
+  for (const int threads : {1, 2}) {
+    const std::string stage = within_deadline([&] {
+      tbb::task_arena arena(threads);
+      return arena.execute([&] {
+        try {
+          reconstruct(in_order(2), 8, &stop);
+        } catch (const slscan::core::ReconstructionInterrupted& e) {
+          return e.stage();
+        }
+        return std::string("(not interrupted)");
+      });
+    });
+    EXPECT_EQ(stage, "wait_for_views") << threads << " thread(s)";
   }
 }
 

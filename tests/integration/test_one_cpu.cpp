@@ -293,6 +293,7 @@ TEST_F(OneCpu, ScanAndReprocessUnderAMemoryLimit) {
   if (SLSCAN_SANITIZED || std::getenv("SLSCAN_NO_MEMORY_LIMIT") != nullptr)
     GTEST_SKIP() << "address-space limits do not apply to a sanitizer build";
   constexpr rlim_t kLimit = rlim_t{1024} << 20;
+  constexpr rlim_t kTooLittle = rlim_t{360} << 20;  // starts (~260 MiB of libraries), cannot reconstruct
   Slscand daemon(dir_ / "limited_slscand");
   const Finished scan =
       run(scan_args(daemon.address(), dir_ / "limited"), dir_ / "limited", {.cpus = 1, .address_space = kLimit});
@@ -305,6 +306,46 @@ TEST_F(OneCpu, ScanAndReprocessUnderAMemoryLimit) {
     EXPECT_EQ(again.exit_code, 0) << again.err;
     expect_same_file(dir_ / "limited" / "model.ply", dir_ / name / "model.ply");
   }
+  // Too little memory: exit 9 (resources) naming the stage and the limit, not "internal error:
+  // std::bad_alloc" (exit 5); nothing is written to --out, whose output set is staged.
+  const fs::path starved = dir_ / "starved";
+  const Finished short_of_memory = run(reprocess_args(dir_ / "limited" / "capture.slcap", starved), starved,
+                                       {.cpus = 1, .address_space = kTooLittle});
+  EXPECT_EQ(short_of_memory.exit_code, 9) << short_of_memory.err;
+  EXPECT_NE(short_of_memory.err.find("out of memory in the reconstruction's "), std::string::npos)
+      << short_of_memory.err;
+  EXPECT_NE(short_of_memory.err.find(" limit (ulimit -v)"), std::string::npos) << short_of_memory.err;
+  EXPECT_NE(short_of_memory.err.find("nothing was written to " + starved.string()), std::string::npos)
+      << short_of_memory.err;
+  for (const char* file : {"model.ply", "report.json", "mesh.ply", ".slscan-staging"})
+    EXPECT_FALSE(fs::exists(starved / file)) << file;
+}
+
+// Ctrl-C after the last frame (issue 17): the final stages (registration, view selection, merge,
+// normals, mesh) check the interrupt between them, so reprocess exits 130 at the next stage
+// boundary with nothing written, instead of finishing the model. On one CPU the stages before
+// the mesh take about a second after "reconstructing N frames" (the last views' decoding, the
+// registration) and the mesh ten more, so the signal always lands inside them.
+TEST_F(OneCpu, CtrlCDuringTheFinalStagesEndsThemAtTheNextStage) {
+  Slscand daemon(dir_ / "final_slscand");
+  const Finished scan = run(scan_args(daemon.address(), dir_ / "final"), dir_ / "final");
+  ASSERT_EQ(scan.exit_code, 0) << scan.err;
+  Child reprocess = spawn(reprocess_args(dir_ / "final" / "capture.slcap", dir_ / "final_reprocessed"),
+                          dir_ / "final_reprocess", {.cpus = 1});
+  const auto deadline = std::chrono::steady_clock::now() + 120s;
+  while (std::chrono::steady_clock::now() < deadline &&
+         read_text(reprocess.err).find("reconstructing " + std::to_string(kFramesPerScan) + " frames") ==
+             std::string::npos)
+    std::this_thread::sleep_for(5ms);
+  ::kill(reprocess.pid, SIGINT);
+  const auto signalled = std::chrono::steady_clock::now();
+  const Finished result = wait_for(reprocess, 120s);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - signalled).count();
+  std::printf("reprocess exited %.2f s after SIGINT\n", seconds);
+  EXPECT_EQ(result.exit_code, 130) << result.err;
+  EXPECT_NE(result.err.find("interrupted (Ctrl-C) before the reconstruction's "), std::string::npos) << result.err;
+  for (const char* file : {"model.ply", "report.json", "mesh.ply", ".slscan-staging"})
+    EXPECT_FALSE(fs::exists(dir_ / "final_reprocessed" / file)) << file;
 }
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <deque>
 #include <exception>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <stdexcept>
@@ -508,8 +509,23 @@ std::vector<int> ScanReconstructor::incomplete_views() const {
   return impl_->incomplete;
 }
 
-ScanResult ScanReconstructor::finish() {
+ScanResult ScanReconstructor::finish(const std::atomic<bool>* stop) {
+  // The stage running, for an out-of-memory report; each boundary is where a stop is honoured.
+  const char* stage = "wait_for_views";
+  auto begin_stage = [&](const char* next) {
+    stage = next;
+    if (stop != nullptr && stop->load()) throw ReconstructionInterrupted(next);
+  };
+  try {
+    return final_stages(begin_stage);
+  } catch (const std::bad_alloc&) {
+    throw ReconstructionOutOfMemory(stage);
+  }
+}
+
+ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)>& begin_stage) {
   Impl& s = *impl_;
+  begin_stage("wait_for_views");
   auto start = Clock::now();
   s.workers.wait();  // runs every queued job (on this thread too)
   {
@@ -529,6 +545,7 @@ ScanResult ScanReconstructor::finish() {
     }
     s.receiving.clear();
   }
+  begin_stage("fuse_remaining");
   start = Clock::now();
   std::vector<int> to_fuse;
   for (auto& [index, view] : s.views) {
@@ -554,6 +571,7 @@ ScanResult ScanReconstructor::finish() {
   }
   if (clouds.empty()) return result;
 
+  begin_stage("register");
   start = Clock::now();
   std::vector<Eigen::Isometry3d> table_from_view(clouds.size());
   for (std::size_t i = 0; i < clouds.size(); ++i)
@@ -569,6 +587,7 @@ ScanResult ScanReconstructor::finish() {
   }
   result.stage_ms["register"] = ms_since(start);
 
+  begin_stage("select_views");
   start = Clock::now();
   if (s.options.select_best_views && clouds.size() >= 2) {
     std::vector<const OrganizedCloud*> grids;
@@ -586,6 +605,7 @@ ScanResult ScanReconstructor::finish() {
   }
   result.stage_ms["select_views"] = ms_since(start);
 
+  begin_stage("merge");
   start = Clock::now();
   PointCloud merged;
   for (std::size_t i = 0; i < clouds.size(); ++i) {
@@ -594,9 +614,11 @@ ScanResult ScanReconstructor::finish() {
   }
   result.merged_points = merged.size();
   result.stage_ms["merge"] = ms_since(start);
+  begin_stage("voxel");
   start = Clock::now();
   if (s.options.voxel_mm > 0) merged = voxel_downsample(merged, s.options.voxel_mm);
   result.stage_ms["voxel"] = ms_since(start);
+  begin_stage("normals");
   start = Clock::now();
   if (s.options.normal_neighbors >= 3 && merged.size() >= static_cast<std::size_t>(s.options.normal_neighbors)) {
     PcaNormalOptions normal_options;
@@ -606,7 +628,6 @@ ScanResult ScanReconstructor::finish() {
   }
   result.stage_ms["normals"] = ms_since(start);
   result.model = std::move(merged);
-
   return result;
 }
 

@@ -179,7 +179,7 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
     return out;
   }
   const auto last_frame = Clock::now();
-  out.reconstruction = stream.finish();
+  out.reconstruction = stream.finish(command.stop);  // Ctrl-C now: the capture is complete
   out.last_frame_to_model_s = std::chrono::duration<double>(Clock::now() - last_frame).count();
   return out;
 }

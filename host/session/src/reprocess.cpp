@@ -1,5 +1,6 @@
 #include "slscan/session/reprocess.hpp"
 
+#include <new>
 #include <stdexcept>
 
 #include "slscan/io/ply.hpp"
@@ -8,12 +9,18 @@
 namespace slscan::session {
 
 ReprocessResult reprocess_capture(const std::string& capture_path, const slproto::RigCalibration& calibration,
-                                  const core::ReconstructionOptions& options, const SessionLog& log) {
+                                  const core::ReconstructionOptions& options, const SessionLog& log, StopFlag stop) {
   StreamReconstruction stream(calibration, options);
   std::size_t expected_frames = 0;
   ReprocessResult out;
-  out.summary = io::replay_capture(
-      capture_path,
+  auto replay = [&](auto&& on_request, auto&& on_frame) {
+    try {
+      return io::replay_capture(capture_path, on_request, on_frame);
+    } catch (const std::bad_alloc&) {
+      throw core::ReconstructionOutOfMemory("reading the capture's frames");
+    }
+  };
+  out.summary = replay(
       [&](const slproto::pb::ScanRequest& scan_request) {
         const slproto::PatternPlan plan = io::plan_of(scan_request);
         stream.set_plan(plan);
@@ -21,6 +28,7 @@ ReprocessResult reprocess_capture(const std::string& capture_path, const slproto
                           static_cast<std::size_t>(scan_request.projectors_size());
       },
       [&](const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
+        if (stop != nullptr && stop->load()) throw core::ReconstructionInterrupted("frames");
         stream.add(header, payload);
         log.progress("frames", stream.received().size(), expected_frames);
       });
@@ -35,7 +43,7 @@ ReprocessResult reprocess_capture(const std::string& capture_path, const slproto
   for (const auto& error : out.summary.errors) log.warn("the board reported: " + error.text());
   log.info("reconstructing " + std::to_string(out.summary.frames) + " frames");
   try {
-    out.reconstruction = stream.finish();
+    out.reconstruction = stream.finish(stop);
   } catch (const std::invalid_argument& e) {
     // A stage refusing its input (its message names the stage and the item): say which capture.
     throw std::invalid_argument(capture_path + ": reconstructing the capture: " + e.what());

@@ -1,6 +1,8 @@
 #include "slscan/session/stream_reconstruction.hpp"
 
 #include <chrono>
+#include <new>
+#include <string>
 
 #include "slscan/io/capture_replay.hpp"
 #include "slscan/io/ply.hpp"
@@ -25,14 +27,21 @@ void StreamReconstruction::add(const slproto::pb::FrameHeader& header, std::span
   if (!reconstructor_)
     reconstructor_ = std::make_unique<core::ScanReconstructor>(calibration_, *plan_, static_cast<int>(header.width()),
                                                                static_cast<int>(header.height()), options_);
-  reconstructor_->add_frame(io::frame_info(header), payload);
+  try {
+    reconstructor_->add_frame(io::frame_info(header), payload);
+  } catch (const std::bad_alloc&) {
+    throw core::ReconstructionOutOfMemory("decode (the frame of view " + std::to_string(header.view_index()) +
+                                          ", projector " + std::to_string(header.projector_id()) + ", pattern " +
+                                          std::to_string(header.pattern_index()) + ")");
+  }
   received_.push_back(header);
   received_.back().clear_timing_events();
 }
 
-core::ScanResult StreamReconstruction::finish() {
+core::ScanResult StreamReconstruction::finish(const std::atomic<bool>* stop) {
   if (!reconstructor_) throw io::IoError("the capture holds no frames");
-  core::ScanResult result = reconstructor_->finish();
+  core::ScanResult result = reconstructor_->finish(stop);
+  if (stop != nullptr && stop->load()) throw core::ReconstructionInterrupted("mesh");
   // The mesh step (slscan_mesh): here rather than in core, which does not link OpenVDB. A cloud
   // the mesher refuses leaves the model and the reports as they are, with the reason.
   const auto start = std::chrono::steady_clock::now();
@@ -42,6 +51,8 @@ core::ScanResult StreamReconstruction::finish() {
       result.meshed = true;
     } catch (const std::invalid_argument& e) {
       result.mesh_error = e.what();
+    } catch (const std::bad_alloc&) {
+      throw core::ReconstructionOutOfMemory("mesh");
     }
   }
   result.stage_ms["mesh"] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();

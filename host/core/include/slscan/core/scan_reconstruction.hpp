@@ -6,8 +6,10 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <span>
@@ -151,6 +153,30 @@ struct FrameInfo {
   int bytes_per_pixel = 1;  // 1 (8-bit) or 2 (uint16)
 };
 
+// Thrown by finish() when its stop flag is set at a stage boundary (Ctrl-C after the last
+// frame). Not a std::runtime_error: stages that catch those (registration) must not swallow it.
+class ReconstructionInterrupted : public std::exception {
+ public:
+  explicit ReconstructionInterrupted(std::string stage) : stage_(std::move(stage)) {}
+  const std::string& stage() const { return stage_; }
+  const char* what() const noexcept override { return stage_.c_str(); }
+
+ private:
+  std::string stage_;
+};
+
+// A stage of the reconstruction ran out of memory (std::bad_alloc): which one. Not a
+// std::runtime_error either, for the same reason.
+class ReconstructionOutOfMemory : public std::exception {
+ public:
+  explicit ReconstructionOutOfMemory(std::string stage) : stage_(std::move(stage)) {}
+  const std::string& stage() const { return stage_; }
+  const char* what() const noexcept override { return stage_.c_str(); }
+
+ private:
+  std::string stage_;
+};
+
 class ScanReconstructor {
  public:
   // Throws std::invalid_argument on an impossible calibration, plan or size, or a camera size
@@ -171,11 +197,14 @@ class ScanReconstructor {
 
   // Waits for the workers, then fuses what is left, registers, cleans and meshes. Views that
   // lack a projector's frames are reconstructed from the projector that is complete; a view
-  // with no complete projector is skipped and counted in `incomplete_views`.
-  ScanResult finish();
+  // with no complete projector is skipped and counted in `incomplete_views`. `stop` (Ctrl-C) is
+  // checked between stages: set, finish() throws ReconstructionInterrupted naming the next stage.
+  // A stage that runs out of memory throws ReconstructionOutOfMemory naming it.
+  ScanResult finish(const std::atomic<bool>* stop = nullptr);
   std::vector<int> incomplete_views() const;
 
  private:
+  ScanResult final_stages(const std::function<void(const char*)>& begin_stage);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

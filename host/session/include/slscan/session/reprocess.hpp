@@ -19,7 +19,11 @@ struct ReprocessResult {
 
 // Throws io::IoError for an unreadable capture, one without a request, or a plan that is not
 // the calibration's. A truncated capture reconstructs the complete frames before the cut.
+// `stop` (Ctrl-C) is checked after each frame and between the final stages: set, it throws
+// core::ReconstructionInterrupted naming the stage; running out of memory throws
+// core::ReconstructionOutOfMemory naming it.
 ReprocessResult reprocess_capture(const std::string& capture_path, const slproto::RigCalibration& calibration,
-                                  const core::ReconstructionOptions& options, const SessionLog& log);
+                                  const core::ReconstructionOptions& options, const SessionLog& log,
+                                  StopFlag stop = nullptr);
 
 }  // namespace slscan::session

@@ -21,8 +21,11 @@ class StreamReconstruction {
 
   // Throws io::IoError naming every field where `plan` differs from the calibration's.
   void set_plan(const slproto::PatternPlan& plan);
+  // A std::bad_alloc while decoding becomes core::ReconstructionOutOfMemory naming the frame.
   void add(const slproto::pb::FrameHeader& header, std::span<const std::byte> payload);
-  core::ScanResult finish();
+  // The final stages and the mesh; `stop` (Ctrl-C) is checked between them
+  // (core::ReconstructionInterrupted), a stage out of memory is core::ReconstructionOutOfMemory.
+  core::ScanResult finish(const std::atomic<bool>* stop = nullptr);
   // The headers of the frames added so far (timing events dropped), for what is missing.
   const std::vector<slproto::pb::FrameHeader>& received() const { return received_; }
 
