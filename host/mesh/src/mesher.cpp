@@ -9,6 +9,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -232,6 +233,65 @@ double median_spacing(const std::vector<Eigen::Vector3f>& points, const Tree& tr
   return d[d.size() / 2];
 }
 
+// Trimming by triangles can leave a vertex whose triangles form two or more fans (a bow-tie):
+// not a 2-manifold, and a border cycle through it cannot be filled (CGAL's hole filling needs
+// a simple cycle: the small-rig ball bar's last open hole). At such a vertex the largest fan
+// (ties: the one with the lowest triangle) is kept and the others dropped, until none is left.
+void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::size_t vertex_count) {
+  for (;;) {
+    std::vector<std::uint32_t> start(vertex_count + 1, 0);
+    for (const auto& t : triangles)
+      for (const std::uint32_t v : t) ++start[v + 1];
+    for (std::size_t v = 0; v < vertex_count; ++v) start[v + 1] += start[v];
+    std::vector<std::uint32_t> incident(start.back()), fill(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < triangles.size(); ++i)
+      for (const std::uint32_t v : triangles[i]) incident[fill[v]++] = static_cast<std::uint32_t>(i);
+    std::vector<std::uint8_t> drop(triangles.size(), 0);
+    bool dropped = false;
+    std::vector<std::uint32_t> fan, size;
+    for (std::size_t v = 0; v < vertex_count; ++v) {
+      const std::uint32_t begin = start[v], end = start[v + 1];
+      if (end - begin < 2) continue;
+      // Fans: incident triangles joined when they share an edge through v (a second vertex).
+      const std::size_t n = end - begin;
+      fan.resize(n);
+      std::iota(fan.begin(), fan.end(), 0u);
+      auto root = [&](std::uint32_t a) {
+        while (fan[a] != a) a = fan[a] = fan[fan[a]];
+        return a;
+      };
+      for (std::size_t a = 0; a < n; ++a)
+        for (std::size_t b = a + 1; b < n; ++b) {
+          const auto& ta = triangles[incident[begin + a]];
+          const auto& tb = triangles[incident[begin + b]];
+          bool share = false;
+          for (const std::uint32_t x : ta)
+            if (x != v && (x == tb[0] || x == tb[1] || x == tb[2])) share = true;
+          if (share) {
+            const std::uint32_t ra = root(static_cast<std::uint32_t>(a)), rb = root(static_cast<std::uint32_t>(b));
+            if (ra != rb) fan[std::max(ra, rb)] = std::min(ra, rb);
+          }
+        }
+      size.assign(n, 0);
+      for (std::size_t a = 0; a < n; ++a) ++size[root(static_cast<std::uint32_t>(a))];
+      std::uint32_t best = 0;
+      for (std::uint32_t a = 0; a < n; ++a)
+        if (size[a] > size[best]) best = a;
+      if (size[best] == n) continue;
+      for (std::size_t a = 0; a < n; ++a)
+        if (root(static_cast<std::uint32_t>(a)) != best) {
+          drop[incident[begin + a]] = 1;
+          dropped = true;
+        }
+    }
+    if (!dropped) return;
+    std::size_t out = 0;
+    for (std::size_t i = 0; i < triangles.size(); ++i)
+      if (!drop[i]) triangles[out++] = triangles[i];
+    triangles.resize(out);
+  }
+}
+
 }  // namespace
 
 core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options) {
@@ -353,7 +413,8 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   // 4. Vertices onto f = 0 (2 Newton steps along the fit's gradient, at most one cell away);
   // the vertex normal is the gradient's direction. Vertices out of the kernel's reach stay.
   std::vector<Eigen::Vector3f> vnormals(vertices.size(), Eigen::Vector3f::Zero());
-  std::vector<std::uint8_t> near(vertices.size(), 0);
+  // The normal of each vertex's nearest point (zero: no point within trim_gate).
+  std::vector<Eigen::Vector3f> point_normal(vertices.size(), Eigen::Vector3f::Zero());
   const auto trim_gate = static_cast<float>(options.trim_factor * scale);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, vertices.size(), 256), [&](const auto& r) {
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -374,21 +435,31 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
       vertices[i] = x.cast<float>();
       vnormals[i] = n.cast<float>();
       float d2 = 0;
-      near[i] = implicit.tree().nearest(vertices[i], trim_gate, d2) >= 0 ? 1 : 0;
+      const std::int64_t k = implicit.tree().nearest(vertices[i], trim_gate, d2);
+      if (k >= 0) point_normal[i] = normals[static_cast<std::size_t>(k)];
     }
   });
 
-  // 5. Raw: triangles with a vertex away from every point are not surface. Watertight keeps
-  // the cut for now and closes the holes it leaves (close_holes), with patches of its own.
+  // 5. Raw: triangles with a vertex away from every point are not surface, nor are triangles
+  // facing away from the points at all three corners: past the rim of the data the fit, fed by
+  // a few points on one side, curls back (a fold within the trim distance that crosses the
+  // surface: the full-resolution sphere's 38 self-intersecting pairs). Watertight keeps the
+  // cut and closes the holes it leaves (close_holes), with patches of its own.
+  const std::size_t level_set_triangles = triangles.size();
   std::vector<std::array<std::uint32_t, 3>> kept;
   kept.reserve(triangles.size());
   for (const auto& t : triangles) {
     if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) continue;
-    if (near[t[0]] && near[t[1]] && near[t[2]]) kept.push_back(t);
+    const Eigen::Vector3f &n0 = point_normal[t[0]], &n1 = point_normal[t[1]], &n2 = point_normal[t[2]];
+    if (n0.isZero() || n1.isZero() || n2.isZero()) continue;
+    const Eigen::Vector3f face = (vertices[t[1]] - vertices[t[0]]).cross(vertices[t[2]] - vertices[t[0]]);
+    if (face.dot(n0) < 0 && face.dot(n1) < 0 && face.dot(n2) < 0) continue;
+    kept.push_back(t);
   }
-  result.trimmed_triangles = triangles.size() - kept.size();
   triangles.clear();
   triangles.shrink_to_fit();
+  remove_pinches(kept, vertices.size());
+  result.trimmed_triangles = level_set_triangles - kept.size();
 
   // 6. Pieces (connected through shared vertices) smaller than min_piece_fraction of the largest.
   std::vector<std::uint32_t> parent(vertices.size());
