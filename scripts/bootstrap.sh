@@ -38,6 +38,8 @@ packages=(
   libeigen3-dev libopencv-dev libopencv-contrib-dev libtbb-dev libnanoflann-dev libcgal-dev libcli11-dev
   # host: the mesher (slscan_mesh, docs/mesh.md): OpenVDB level sets (+ Imath); CGAL (above) closes and checks it
   libopenvdb-dev libimath-dev
+  # host: the mesh as 3MF (lib3mf 1.8, slscan_io)
+  lib3mf-dev
   # host: batch reprocessing (SHA-256 job keys: libssl-dev; a one-node Slurm in the tests)
   libssl-dev slurm-wlm slurmctld slurmd munge
   # firmware hardware backends

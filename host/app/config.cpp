@@ -123,9 +123,11 @@ void apply_sections(const json& config, core::ReconstructionOptions& o) {
   o.decode.noise_factor = static_cast<float>(noise_factor);
   Section(top, "model").read("voxel_mm", o.voxel_mm).read("normal_neighbors", o.normal_neighbors).finish();
   std::string mesh_mode = core::mesh_mode_name(o.mesh.mode);
+  std::string mesh_formats = core::mesh_formats_text(o.mesh_formats);
   Section(top, "mesh")
       .read("enabled", o.build_mesh)
       .read("mode", mesh_mode)
+      .read("formats", mesh_formats)
       .read("cell_mm", o.mesh.cell_mm)
       .read("cell_spacing_factor", o.mesh.cell_spacing_factor)
       .read("min_cell_mm", o.mesh.min_cell_mm)
@@ -136,6 +138,8 @@ void apply_sections(const json& config, core::ReconstructionOptions& o) {
       .finish();
   if (!core::parse_mesh_mode(mesh_mode, o.mesh.mode))
     throw std::invalid_argument("config: mesh.mode must be \"raw\" or \"watertight\", not \"" + mesh_mode + "\"");
+  if (const std::string why = core::parse_mesh_formats(mesh_formats, o.mesh_formats); !why.empty())
+    throw std::invalid_argument("config: mesh.formats: " + why);
   top.finish();
 }
 
@@ -222,6 +226,7 @@ json config_to_json(const core::ReconstructionOptions& o) {
       {"mesh",
        {{"enabled", o.build_mesh},
         {"mode", core::mesh_mode_name(o.mesh.mode)},
+        {"formats", core::mesh_formats_text(o.mesh_formats)},
         {"cell_mm", o.mesh.cell_mm},
         {"cell_spacing_factor", o.mesh.cell_spacing_factor},
         {"min_cell_mm", o.mesh.min_cell_mm},

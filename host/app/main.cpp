@@ -47,6 +47,47 @@ CLI::Validator existing(bool directory) {
       directory ? "DIR" : "FILE");
 }
 
+// scan / reprocess: --mesh, --fill-holes, --mesh-formats (docs/cli.md). A bad value is refused
+// by CLI11 (exit 1) naming the option; contradictions with the config are apply_mesh_overrides'.
+void add_mesh_options(CLI::App& command, MeshOverrides& mesh) {
+  command
+      .add_option("--mesh", mesh.mode,
+                  "Mesh: watertight (closed, holes filled and flagged; the default), raw (only where points are, "
+                  "holes open) or none (overrides the config's mesh section)")
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            return text == "watertight" || text == "raw" || text == "none"
+                       ? std::string()
+                       : "must be watertight, raw or none, not \"" + text + "\"";
+          },
+          "watertight|raw|none"));
+  command
+      .add_option_function<double>(
+          "--fill-holes", [&mesh](const double& mm) { mesh.fill_holes_mm = mm; },
+          "Watertight mesh: holes up to this diameter (mm, default 10) are closed with a smooth patch, larger ones "
+          "with a flat one")
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            try {
+              std::size_t used = 0;
+              const double v = std::stod(text, &used);
+              if (used == text.size() && std::isfinite(v) && v >= 0) return {};
+            } catch (const std::exception&) {
+            }
+            return "must be a hole diameter >= 0 (mm), not \"" + text + "\"";
+          },
+          "MM >= 0"));
+  command
+      .add_option("--mesh-formats", mesh.formats,
+                  "Mesh files, comma-separated: ply, stl, obj, 3mf (default ply,stl; all in mm)")
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            slscan::core::MeshFormats formats;
+            return slscan::core::parse_mesh_formats(text, formats);
+          },
+          "ply,stl,obj,3mf"));
+}
+
 // Levenshtein distance, for "did you mean".
 std::size_t edit_distance(const std::string& a, const std::string& b) {
   std::vector<std::size_t> row(b.size() + 1);
@@ -149,6 +190,7 @@ static int run_command_line(int argc, char** argv) {
   reprocess_cmd->add_option("--out", reprocess.output_dir, "Output folder")->required();
   reprocess_cmd->add_option("--config", reprocess.config_path, "Reconstruction parameters (JSON)")
       ->check(existing(false));
+  add_mesh_options(*reprocess_cmd, reprocess.mesh);
 
   ScanCommand scan;
   std::string connect = "127.0.0.1:7878";
@@ -174,6 +216,7 @@ static int run_command_line(int argc, char** argv) {
                      "Replace the capture already in --out (without it, such a folder is refused)");
   scan_cmd->add_flag("--measure-ballbar", scan.measure_ball_bar,
                      "Fit the ball bar in the model and put its figures in the reports");
+  add_mesh_options(*scan_cmd, scan.mesh);
 
   ConvertCommand convert;
   auto* convert_cmd = app.add_subcommand(
@@ -439,6 +482,9 @@ static int run_command_line(int argc, char** argv) {
   } catch (const slscan::io::IoError& e) {
     std::cerr << "slscan: " << e.what() << "\n";
     return exit_bad_input;
+  } catch (const UsageError& e) {
+    std::cerr << "slscan: " << e.what() << "\n";
+    return exit_usage;
   } catch (const std::invalid_argument& e) {
     std::cerr << "slscan: " << e.what() << "\n";
     return exit_bad_input;

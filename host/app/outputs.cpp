@@ -9,8 +9,10 @@
 #include <numbers>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <utility>
 
 #include "report_html.hpp"
+#include "slscan/io/mesh_file.hpp"
 #include "slscan/io/ply.hpp"
 #include "viewer_bundle.hpp"
 
@@ -370,7 +372,8 @@ std::vector<unsigned char> render_preview_png(const core::PointCloud& cloud, dou
 namespace {
 
 // The whole set, into `dir` (the staging folder), report.json last.
-OutputFiles write_set(const std::string& dir, const core::ScanResult& result, json report) {
+OutputFiles write_set(const std::string& dir, const core::ScanResult& result, json report,
+                      const core::MeshFormats& formats) {
   namespace fs = std::filesystem;
   fs::create_directories(fs::path(dir) / "views");
   fs::create_directories(fs::path(dir) / "pictures");
@@ -379,18 +382,35 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
   files.model_ply = (fs::path(dir) / "model.ply").string();
   io::write_ply(files.model_ply, result.model, ply);
   if (result.meshed) {
+    const core::TriangleMesh& mesh = result.mesh.mesh;
+    const std::string mode = core::mesh_mode_name(result.mesh.mode);
     std::vector<Eigen::Vector3i> triangles;
-    triangles.reserve(result.mesh.mesh.triangles.size());
-    for (const auto& t : result.mesh.mesh.triangles)
-      triangles.emplace_back(static_cast<int>(t[0]), static_cast<int>(t[1]), static_cast<int>(t[2]));
-    files.mesh_ply = (fs::path(dir) / "mesh.ply").string();
-    files.mesh_stl = (fs::path(dir) / "mesh.stl").string();
-    io::write_mesh_ply(files.mesh_ply, result.mesh.mesh.vertices, result.mesh.mesh.normals, triangles,
-                       {.binary = true,
-                        .comments = {std::string("slscan mesh (") + core::mesh_mode_name(result.mesh.mode) +
-                                     "), turntable frame, mm; face property filled = 1: closes a hole"}},
-                       result.mesh.mesh.filled);
-    io::write_stl(files.mesh_stl, result.mesh.mesh.vertices, triangles, "slscan mesh, turntable frame, mm");
+    if (formats.ply || formats.stl) {
+      triangles.reserve(mesh.triangles.size());
+      for (const auto& t : mesh.triangles)
+        triangles.emplace_back(static_cast<int>(t[0]), static_cast<int>(t[1]), static_cast<int>(t[2]));
+    }
+    if (formats.ply) {
+      files.mesh_ply = (fs::path(dir) / "mesh.ply").string();
+      io::write_mesh_ply(
+          files.mesh_ply, mesh.vertices, mesh.normals, triangles,
+          {.binary = true,
+           .comments = {"slscan mesh (" + mode + "), turntable frame, mm; face property filled = 1: closes a hole"}},
+          mesh.filled);
+    }
+    if (formats.stl) {
+      files.mesh_stl = (fs::path(dir) / "mesh.stl").string();
+      io::write_stl(files.mesh_stl, mesh.vertices, triangles, "slscan mesh, turntable frame, mm");
+    }
+    if (formats.obj) {
+      files.mesh_obj = (fs::path(dir) / "mesh.obj").string();
+      io::write_obj(files.mesh_obj, mesh,
+                    {"slscan mesh (" + mode + "), turntable frame", "group filled: faces that close a hole"});
+    }
+    if (formats.three_mf) {
+      files.mesh_3mf = (fs::path(dir) / "mesh.3mf").string();
+      io::write_3mf(files.mesh_3mf, mesh, "slscan mesh (" + mode + ")");
+    }
   }
   for (std::size_t i = 0; i < result.view_products.size(); ++i) {
     const auto& products = result.view_products[i];
@@ -417,10 +437,9 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
   }
   report["scan"] = scan_result_to_json(result);
   json outputs = {{"model", "model.ply"}, {"views", "views/"}, {"pictures", "pictures/"}};
-  if (result.meshed) {
-    outputs["mesh_ply"] = "mesh.ply";
-    outputs["mesh_stl"] = "mesh.stl";
-  }
+  for (const auto& [key, path] : {std::pair{"mesh_ply", &files.mesh_ply}, std::pair{"mesh_stl", &files.mesh_stl},
+                                  std::pair{"mesh_obj", &files.mesh_obj}, std::pair{"mesh_3mf", &files.mesh_3mf}})
+    if (!path->empty()) outputs[key] = fs::path(*path).filename().string();
   outputs["report_html"] = "report.html";
   report["outputs"] = outputs;
   std::vector<std::string> relative_pictures;
@@ -439,8 +458,8 @@ namespace fs = std::filesystem;
 // What a run writes into its output folder; a new run replaces all of them, so nothing of an
 // earlier run (a mesh, a view, a picture the new run does not make) stays beside the new set.
 // report.json is not in the list: it goes out first and comes in last.
-constexpr std::array<const char*, 6> set_entries = {"model.ply", "mesh.ply", "mesh.stl",
-                                                    "views",     "pictures", "report.html"};
+constexpr std::array<const char*, 8> set_entries = {"model.ply", "mesh.ply", "mesh.stl", "mesh.obj",
+                                                    "mesh.3mf",  "views",    "pictures", "report.html"};
 constexpr const char* staging_name = ".slscan-staging";
 constexpr const char* previous_name = ".slscan-previous";
 
@@ -504,7 +523,8 @@ void commit_set(const fs::path& stage, const fs::path& out) {
 
 }  // namespace
 
-OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, json report) {
+OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, json report,
+                               const core::MeshFormats& mesh_formats) {
   const fs::path out = fs::path(dir).lexically_normal();
   std::error_code error;
   fs::create_directories(out, error);
@@ -517,7 +537,7 @@ OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& r
   remove_all_or_throw(stage);  // left by a run that was killed
   OutputFiles staged;
   try {
-    staged = write_set(stage.string(), result, std::move(report));
+    staged = write_set(stage.string(), result, std::move(report), mesh_formats);
   } catch (const std::bad_alloc&) {
     fs::remove_all(stage, error);  // out of memory is the caller's to report (exit_resources)
     throw;
@@ -531,8 +551,9 @@ OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& r
   const auto moved = [&](const std::string& path) {
     return path.empty() ? path : (out / fs::path(path).lexically_relative(stage)).string();
   };
-  OutputFiles files{moved(staged.model_ply),   moved(staged.mesh_ply),    moved(staged.mesh_stl),
-                    moved(staged.report_json), moved(staged.report_html), {}};
+  OutputFiles files{
+      moved(staged.model_ply), moved(staged.mesh_ply),    moved(staged.mesh_stl),    moved(staged.mesh_obj),
+      moved(staged.mesh_3mf),  moved(staged.report_json), moved(staged.report_html), {}};
   for (const auto& p : staged.pictures) files.pictures.push_back(moved(p));
   return files;
 }

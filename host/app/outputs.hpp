@@ -1,5 +1,5 @@
-// What a reconstruction leaves in its output folder: the fused model (PLY), the mesh (PLY and
-// STL), per-view clouds, report.json, and pictures (per-view depth, quality and fusion-source
+// What a reconstruction leaves in its output folder: the fused model (PLY), the mesh (PLY, STL,
+// OBJ, 3MF: those chosen), per-view clouds, report.json, and pictures (per-view depth, quality and fusion-source
 // maps, previews of the model) and report.html showing all of it. Every file is written to a temporary name and
 // renamed.
 #pragma once
@@ -19,13 +19,15 @@ std::vector<std::string> self_check_findings(const core::ScanResult& result);
 nlohmann::json ball_bar_to_json(const core::BallBarResult& ball_bar);
 
 struct OutputFiles {
-  std::string model_ply, mesh_ply, mesh_stl, report_json, report_html;
+  std::string model_ply, mesh_ply, mesh_stl, mesh_obj, mesh_3mf, report_json, report_html;  // "": not written
   std::vector<std::string> pictures;
 };
 
-// Writes everything into `dir` (created if needed). `report` is completed with the scan's
-// figures and written last, as report.json, just after report.html shows it.
-OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, nlohmann::json report);
+// Writes everything into `dir` (created if needed): the mesh, when the result has one, in each
+// of `mesh_formats`. `report` is completed with the scan's figures and written last, as
+// report.json, just after report.html shows it.
+OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& result, nlohmann::json report,
+                               const core::MeshFormats& mesh_formats = {});
 
 // A view's depth (camera z, turbo) and decode-quality (modulation, viridis) pictures as PNG:
 // colours span the view's 1st-99th percentile (beyond: the end colours), black = nothing

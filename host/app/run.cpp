@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
@@ -65,8 +66,10 @@ void prepare_output_folder(const std::string& dir, const std::string& option, bo
   if (error) throw io::IoError(option + " " + dir + ": cannot create the folder (" + error.message() + ")");
 }
 
-core::ReconstructionOptions options_from(const std::string& config_path) {
-  return config_path.empty() ? core::ReconstructionOptions{} : load_config(config_path);
+core::ReconstructionOptions options_from(const std::string& config_path, const MeshOverrides& mesh) {
+  core::ReconstructionOptions options = config_path.empty() ? core::ReconstructionOptions{} : load_config(config_path);
+  apply_mesh_overrides(mesh, options);
+  return options;
 }
 
 json provenance(const core::ReconstructionOptions& options, const slproto::RigCalibration& calibration,
@@ -102,9 +105,12 @@ void print_summary(const Console& console, const core::ScanResult& result, const
   if (result.meshed) {
     char cell[32];
     std::snprintf(cell, sizeof cell, "%.3g", result.mesh.cell_mm);
+    std::string written;
+    for (const std::string* file : {&files.mesh_ply, &files.mesh_stl, &files.mesh_obj, &files.mesh_3mf})
+      if (!file->empty()) written += (written.empty() ? "" : ", ") + *file;
     console.info(std::string("mesh (") + core::mesh_mode_name(result.mesh.mode) + ", cell " + cell +
                  " mm): " + std::to_string(result.mesh.mesh.triangles.size()) + " triangles in " +
-                 seconds_text(result.mesh.stats.mesh_ms / 1000) + " -> " + files.mesh_ply);
+                 seconds_text(result.mesh.stats.mesh_ms / 1000) + " -> " + written);
   } else if (!result.mesh_error.empty()) {
     console.warn("no mesh: " + result.mesh_error);
   }
@@ -158,6 +164,36 @@ void check_not_empty(const core::ScanResult& result, const std::string& capture,
 }
 
 }  // namespace
+
+void apply_mesh_overrides(const MeshOverrides& overrides, core::ReconstructionOptions& options) {
+  if (overrides.mode == "none") {
+    options.build_mesh = false;
+  } else if (!overrides.mode.empty()) {
+    if (!core::parse_mesh_mode(overrides.mode, options.mesh.mode))
+      throw UsageError("--mesh must be watertight, raw or none, not \"" + overrides.mode + "\"");
+    options.build_mesh = true;
+  }
+  // Why this run makes no watertight mesh, for the options that need one.
+  const auto no_mesh = [&] {
+    return overrides.mode == "none" ? std::string("--mesh none") : std::string("the config's mesh.enabled is false");
+  };
+  if (!overrides.formats.empty()) {
+    if (!options.build_mesh) throw UsageError("--mesh-formats: this run makes no mesh (" + no_mesh() + ")");
+    if (const std::string why = core::parse_mesh_formats(overrides.formats, options.mesh_formats); !why.empty())
+      throw UsageError("--mesh-formats: " + why);
+  }
+  if (overrides.fill_holes_mm) {
+    const double mm = *overrides.fill_holes_mm;
+    if (!options.build_mesh) throw UsageError("--fill-holes: this run makes no mesh (" + no_mesh() + ")");
+    if (options.mesh.mode != core::MeshMode::watertight)
+      throw UsageError(std::string("--fill-holes applies to the watertight mesh; this run's is raw (") +
+                       (overrides.mode.empty() ? "the config's mesh.mode" : "--mesh raw") +
+                       "), which leaves every hole open");
+    if (!(mm >= 0) || !std::isfinite(mm)) throw UsageError("--fill-holes must be a diameter >= 0 mm");
+    options.mesh.fill_holes_mm = mm;
+  }
+  options.check();
+}
 
 void install_interrupt_handler() {
   struct sigaction action {};
@@ -239,8 +275,9 @@ namespace {
 
 int run_reprocess(const ReprocessRequest& request, const Console& console) {
   const auto start = Clock::now();
+  // The options first: a command line that contradicts itself is refused before any file is read.
+  const core::ReconstructionOptions options = options_from(request.config_path, request.mesh);
   const slproto::RigCalibration calibration = load_calibration_or_throw(request.calibration_path);
-  const core::ReconstructionOptions options = options_from(request.config_path);
   prepare_output_folder(request.output_dir, "reprocess --out", false);
   session::ReprocessResult replayed;
   try {
@@ -266,7 +303,7 @@ int run_reprocess(const ReprocessRequest& request, const Console& console) {
   check_not_empty(replayed.reconstruction, request.capture_path, "");
   OutputFiles files;
   try {
-    files = write_scan_outputs(request.output_dir, replayed.reconstruction, report);
+    files = write_scan_outputs(request.output_dir, replayed.reconstruction, report, options.mesh_formats);
   } catch (const std::bad_alloc&) {
     throw_out_of_memory(request, "writing the outputs");
   }
@@ -319,8 +356,8 @@ int run_scan(const ScanCommand& command, const Console& console) {
   const auto start = Clock::now();
   if (const std::string capture = capture_in(command.output_dir); !capture.empty() && !command.overwrite)
     return refuse_to_overwrite("scan", capture);
+  const core::ReconstructionOptions options = options_from(command.config_path, command.mesh);
   const slproto::RigCalibration calibration = load_calibration_or_throw(command.calibration_path);
-  const core::ReconstructionOptions options = options_from(command.config_path);
   prepare_output_folder(command.output_dir, "scan --out", true);
   session::LiveScanRequest request;
   request.scanner = {command.host, command.port, read_token_file(command.token_file)};
@@ -385,7 +422,7 @@ int run_scan(const ScanCommand& command, const Console& console) {
       console.warn(std::string("ball bar not measured: ") + e.what());
     }
   }
-  const OutputFiles files = write_scan_outputs(command.output_dir, result, report);
+  const OutputFiles files = write_scan_outputs(command.output_dir, result, report, options.mesh_formats);
   print_summary(console, result, files, seconds_since(start));
   return report_self_checks(console, result);
 }

@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -73,11 +74,28 @@ class ConsoleLog final : public session::SessionLog {
 extern std::atomic<bool> interrupted;
 void install_interrupt_handler();
 
+// A command line that contradicts itself or its config file (`--fill-holes` with `--mesh raw`):
+// exit_usage, where other invalid_arguments (a bad config file) are exit_bad_input.
+class UsageError : public std::invalid_argument {
+ public:
+  using std::invalid_argument::invalid_argument;
+};
+
+// scan / reprocess: the mesh options of the command line, over the config file's mesh section.
+struct MeshOverrides {
+  std::string mode = {};                     // "" = the config's; watertight, raw or none
+  std::optional<double> fill_holes_mm = {};  // watertight only (mm, >= 0)
+  std::string formats = {};                  // "" = the config's; a list such as "ply,stl,obj,3mf"
+};
+// Applies them and checks the result; throws UsageError naming the option.
+void apply_mesh_overrides(const MeshOverrides& overrides, core::ReconstructionOptions& options);
+
 struct ReprocessRequest {
   std::string capture_path;
   std::string calibration_path;
   std::string output_dir;
   std::string config_path;  // "" = defaults
+  MeshOverrides mesh = {};
 };
 int run_reprocess(const ReprocessRequest& request, const Console& console);
 
@@ -97,6 +115,7 @@ struct ScanCommand {
   bool measure_ball_bar = false;       // fit the ball bar in the model and put it in the report
   bool compress = false;               // record the capture with zstd-compressed frames
   bool overwrite = false;              // replace a capture already in output_dir (refused otherwise)
+  MeshOverrides mesh;
 };
 int run_scan(const ScanCommand& command, const Console& console);
 

@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
+#include <utility>
 
 namespace slscan::core {
 
@@ -18,6 +19,37 @@ bool parse_mesh_mode(const std::string& name, MeshMode& mode) {
   else
     return false;
   return true;
+}
+
+std::string mesh_formats_text(const MeshFormats& formats) {
+  std::string text;
+  for (const auto& [chosen, name] : {std::pair{formats.ply, "ply"}, std::pair{formats.stl, "stl"},
+                                     std::pair{formats.obj, "obj"}, std::pair{formats.three_mf, "3mf"}})
+    if (chosen) text += (text.empty() ? "" : ",") + std::string(name);
+  return text;
+}
+
+std::string parse_mesh_formats(const std::string& list, MeshFormats& formats) {
+  MeshFormats parsed{false, false, false, false};
+  std::size_t start = 0;
+  for (;;) {
+    const std::size_t comma = list.find(',', start);
+    const std::string word = list.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    bool* chosen = word == "ply"   ? &parsed.ply
+                   : word == "stl" ? &parsed.stl
+                   : word == "obj" ? &parsed.obj
+                   : word == "3mf" ? &parsed.three_mf
+                                   : nullptr;
+    if (chosen == nullptr)
+      return word.empty() ? "an empty name in \"" + list + "\" (a comma-separated list of ply, stl, obj, 3mf)"
+                          : "unknown mesh format \"" + word + "\" (ply, stl, obj or 3mf)";
+    if (*chosen) return "\"" + word + "\" is listed twice";
+    *chosen = true;
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  formats = parsed;
+  return {};
 }
 
 void MeshOptions::check() const {

@@ -39,6 +39,10 @@ void ReconstructionOptions::check() const {
   depth_smoothing.check();
   overlap.check();
   mesh.check();
+  if (!mesh_formats.any())
+    throw std::invalid_argument(
+        "reconstruction options: mesh.formats names no file format (ply, stl, obj, 3mf); to write no mesh, set "
+        "mesh.enabled false");
   if (!(noise_factor >= 0) || !std::isfinite(noise_factor))
     throw std::invalid_argument("reconstruction options: noise_factor must be a finite value >= 0 (0: fixed limits)");
   // A voxel below a micron thins nothing and costs a hash entry per point; above a metre it

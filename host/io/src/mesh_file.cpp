@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -146,8 +147,10 @@ core::TriangleMesh read_mesh(const std::string& path) {
     mesh = read_ply_mesh(path);
   else if (ext == ".obj")
     mesh = read_obj(path);
+  else if (ext == ".3mf")
+    mesh = read_3mf(path).mesh;
   else
-    throw IoError(path + ": unknown mesh format '" + ext + "' (STL, PLY or OBJ are read)");
+    throw IoError(path + ": unknown mesh format '" + ext + "' (STL, PLY, OBJ or 3MF are read)");
   if (mesh.triangles.empty())
     throw IoError(path + ": no triangles (a nominal must be a surface mesh, not a point cloud)");
   for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
@@ -156,6 +159,58 @@ core::TriangleMesh read_mesh(const std::string& path) {
   core::TriangleMesh welded = core::weld_vertices(mesh);
   if (welded.triangles.empty()) throw IoError(path + ": every triangle is degenerate (no area)");
   return welded;
+}
+
+void write_obj(const std::string& path, const core::TriangleMesh& mesh, const std::vector<std::string>& comments) {
+  const std::size_t n = mesh.vertices.size();
+  const bool with_normals = !mesh.normals.empty() && mesh.normals.size() == n;
+  const bool with_flags = !mesh.filled.empty();
+  if (with_flags && mesh.filled.size() != mesh.triangles.size())
+    throw IoError(path + ": " + std::to_string(mesh.filled.size()) + " face flags for " +
+                  std::to_string(mesh.triangles.size()) + " triangles");
+  std::string out;
+  out.reserve(n * (with_normals ? 64 : 32) + mesh.triangles.size() * 40 + 256);
+  for (const auto& c : comments) out += "# " + c + "\n";
+  out += "# units: mm\n";
+  char buffer[64];
+  const auto number = [&](float v) {
+    const auto end = std::to_chars(buffer, buffer + sizeof buffer, v).ptr;
+    out.append(buffer, end);
+  };
+  const auto line = [&](const char* tag, const Eigen::Vector3f& v) {
+    out += tag;
+    for (int k = 0; k < 3; ++k) {
+      out += ' ';
+      number(v[k]);
+    }
+    out += '\n';
+  };
+  for (std::size_t i = 0; i < n; ++i) line("v", mesh.vertices[i]);
+  if (with_normals)
+    for (std::size_t i = 0; i < n; ++i) line("vn", mesh.normals[i]);
+  int group = -1;  // the group of the faces being written: 0 measured, 1 filled
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const int flag = with_flags && mesh.filled[t] ? 1 : 0;
+    if (flag != group) {
+      out += flag ? "g filled\n" : "g measured\n";
+      group = flag;
+    }
+    out += 'f';
+    for (const std::uint32_t v : mesh.triangles[t]) {
+      if (v >= n)
+        throw IoError(path + ": triangle " + std::to_string(t) + " refers to vertex " + std::to_string(v) + " of " +
+                      std::to_string(n));
+      const auto end = std::to_chars(buffer, buffer + sizeof buffer, std::uint64_t{v} + 1).ptr;
+      out += ' ';
+      out.append(buffer, end);
+      if (with_normals) {
+        out += "//";
+        out.append(buffer, end);
+      }
+    }
+    out += '\n';
+  }
+  write_file_atomically(path, out);
 }
 
 void write_deviation_ply(const std::string& path, const std::vector<Eigen::Vector3f>& points,

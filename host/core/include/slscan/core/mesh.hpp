@@ -51,6 +51,20 @@ struct MeshOptions {
   void check() const;  // throws std::invalid_argument naming the field
 };
 
+// The mesh files a run writes (app/outputs.cpp), all in mm. Here, beside the mesher's options,
+// so that the config's mesh section (ReconstructionOptions) holds them and report.json records
+// them. Default: what a run wrote before OBJ and 3MF existed, so a default run is no slower.
+struct MeshFormats {
+  bool ply = true, stl = true, obj = false, three_mf = false;
+  bool any() const { return ply || stl || obj || three_mf; }
+  bool operator==(const MeshFormats&) const = default;
+};
+// "ply,stl,obj,3mf" order, the chosen ones.
+std::string mesh_formats_text(const MeshFormats& formats);
+// A comma-separated list of ply, stl, obj, 3mf (each at most once, case as written, no spaces):
+// "" when parsed, else why not (naming the word).
+std::string parse_mesh_formats(const std::string& list, MeshFormats& formats);
+
 struct MeshStats {
   double spacing_mm = 0;  // median nearest-neighbour distance of the points
   std::size_t points_used = 0, isolated_points = 0;

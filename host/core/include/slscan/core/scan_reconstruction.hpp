@@ -74,6 +74,7 @@ struct ReconstructionOptions {
   // by ScanReconstructor::finish(): core does not link OpenVDB.
   bool build_mesh = true;
   MeshOptions mesh;
+  MeshFormats mesh_formats;             // which mesh files the app writes (not used by the reconstruction)
   int max_pending_projector_views = 8;  // decoders in flight (each holds one projector-view of frames)
   // Keep each projector's cloud (after flying-pixel removal) in ViewProducts: for accuracy
   // studies and the per-projector reports; off in scans (two more clouds per view in memory).
