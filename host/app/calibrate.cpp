@@ -1,12 +1,15 @@
 #include "calibrate.hpp"
 
 #include <cstdio>
+#include <iostream>
 #include <nlohmann/json.hpp>
 #include <optional>
 
 #include "slproto/calibration.hpp"
 #include "slscan/io/calibration_capture_files.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/session/calibration_capture.hpp"
+#include "status.hpp"
 #ifdef SLSCAN_WITH_DEMO
 #include "slrig/rig.hpp"
 #include "slscan/virtual_rig/virtual_calibration.hpp"
@@ -51,6 +54,26 @@ std::string calibration_report_json(const core::CalibrationReport& report) {
       .dump(1);
 }
 
+namespace {
+
+// Interactive capture: the pose to set, then Enter (or q and Enter to stop).
+session::PoseAnswer ask_user(const slproto::GuidedCalibrationPose& pose, const std::string& problem) {
+  if (!problem.empty())
+    std::printf(
+        "%s: %s\n  adjust the board and press Enter to take it again (q, Enter: stop; the poses so far "
+        "are kept)\n",
+        pose.name.c_str(), problem.c_str());
+  else
+    std::printf("%s: %s\n  press Enter when the board is set (q, Enter: stop; the poses so far are kept)\n",
+                pose.name.c_str(), pose.instruction().c_str());
+  std::fflush(stdout);
+  std::string line;
+  if (!std::getline(std::cin, line) || line == "q" || line == "Q") return session::PoseAnswer::quit;
+  return session::PoseAnswer::ready;
+}
+
+}  // namespace
+
 int run_calibrate(const CalibrateCommand& command, const Console& console) {
   core::CalibrationCapture capture;
   core::CalibrationOptions options;
@@ -58,7 +81,37 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
 #ifdef SLSCAN_WITH_DEMO
   std::optional<virtual_rig::VirtualCalibrationCapture> rendered;
 #endif
-  if (!command.virtual_rig.empty()) {
+  if (!command.connect.empty()) {
+    if (!command.capture_dir.empty() || !command.virtual_rig.empty())
+      throw std::invalid_argument("calibrate: give a capture folder, --virtual or --connect, not two of them");
+    if (!command.resume_dir.empty() && !command.write_capture_dir.empty() &&
+        command.resume_dir != command.write_capture_dir)
+      throw std::invalid_argument("calibrate: --resume " + command.resume_dir +
+                                  " writes to that folder; --write-capture " + command.write_capture_dir +
+                                  " names another");
+    session::CalibrationCaptureRequest request;
+    const auto [host, port] = parse_scanner_address(command.connect);
+    request.scanner = {host, port, read_token_file(command.token_file)};
+    request.target = command.target;
+    request.platform_radius_mm = command.platform_radius_mm;
+    request.turntable = !command.no_turntable;
+    request.folder = command.resume_dir.empty() ? command.write_capture_dir : command.resume_dir;
+    request.resume = !command.resume_dir.empty();
+    request.exposure_us = command.exposure_us;
+    request.pattern_period_us = command.pattern_period_us;
+    request.settle_ms = command.settle_ms;
+    request.stop = &interrupted;
+    if (!command.auto_mode) request.ask = ask_user;
+    try {
+      capture = session::capture_calibration(request, ConsoleLog(console));
+    } catch (const session::CalibrationCaptureStopped& e) {
+      console.warn(std::string("calibrate: ") + e.what());
+      return e.why == session::CalibrationCaptureStopped::Why::pose_rejected ? exit_measurement : exit_interrupted;
+    }
+    console.info("captured " + std::to_string(capture.frames.size()) + " frames of " +
+                 std::to_string(capture.poses.size()) + " poses" +
+                 (request.folder.empty() ? std::string() : " (in " + request.folder + ")"));
+  } else if (!command.virtual_rig.empty()) {
 #ifdef SLSCAN_WITH_DEMO
     if (!command.capture_dir.empty())
       throw std::invalid_argument("calibrate: give a capture folder or --virtual, not both");

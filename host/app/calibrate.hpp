@@ -4,20 +4,32 @@
 // (slrig::calibration_poses), and the result is also compared with the rig's truth.
 #pragma once
 
+#include <cstdint>
 #include <string>
 
 #include "run.hpp"
+#include "slproto/calibration_poses.hpp"
 #include "slscan/core/calibration_rig.hpp"
 
 namespace slscan::app {
 
 struct CalibrateCommand {
-  std::string capture_dir;                       // calibration capture folder ("" with virtual_rig)
-  std::string output_path;                       // calibration file (JSON), written atomically
-  std::string report_path;                       // "" = no JSON report
-  bool no_turntable = false;                     // camera and projectors only
-  std::string virtual_rig;                       // "", "small" or "full": render the capture on the virtual rig
-  std::string write_capture_dir;                 // virtual_rig only: also write the rendered capture folder
+  std::string capture_dir;        // calibration capture folder ("" with virtual_rig)
+  std::string output_path;        // calibration file (JSON), written atomically
+  std::string report_path;        // "" = no JSON report
+  bool no_turntable = false;      // camera and projectors only
+  std::string virtual_rig;        // "", "small" or "full": render the capture on the virtual rig
+  std::string write_capture_dir;  // --virtual / --connect: also write the capture folder
+  // --connect HOST[:PORT]: capture through the scanner, pose by pose (session::capture_calibration).
+  std::string connect;
+  std::string token_file;
+  bool auto_mode = false;            // --auto: do not wait for the user at each pose
+  std::string resume_dir;            // --resume DIR: continue the capture in DIR (and keep writing there)
+  slproto::CheckerboardSize target;  // the printed checkerboard
+  double platform_radius_mm = 150;
+  std::uint32_t exposure_us = 8333;
+  std::uint32_t pattern_period_us = 10000;
+  std::uint32_t settle_ms = 200;
   core::RigCalibrationResult* result = nullptr;  // programmatic callers: the result and report, too
 };
 int run_calibrate(const CalibrateCommand& command, const Console& console);

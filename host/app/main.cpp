@@ -357,9 +357,35 @@ static int run_command_line(int argc, char** argv) {
       ->add_option("--virtual", calibrate.virtual_rig,
                    "Render the virtual rig's calibration capture (small or full) instead of reading one")
       ->check(CLI::IsMember({"small", "full"}));
-  calibrate_cmd->add_option("--write-capture", calibrate.write_capture_dir,
-                            "With --virtual: also write the rendered capture folder");
 #endif
+  calibrate_cmd->add_option("--write-capture", calibrate.write_capture_dir,
+                            "With --virtual or --connect: also write the capture folder (--connect: pose by pose)");
+  calibrate_cmd->add_option("--connect", calibrate.connect,
+                            "Capture through the scanner at HOST[:PORT], pose by pose (docs/calibration.md)");
+  calibrate_cmd->add_option("--token-file", calibrate.token_file, "With --connect: the scanner's shared token");
+  calibrate_cmd->add_flag("--auto", calibrate.auto_mode,
+                          "With --connect: do not wait for Enter at each pose; a pose whose board is not found or "
+                          "lit is an error");
+  calibrate_cmd
+      ->add_option("--resume", calibrate.resume_dir,
+                   "With --connect: continue the capture folder DIR after the poses already in it")
+      ->check(existing(true));
+  calibrate_cmd->add_option("--squares-x", calibrate.target.squares_x, "Checkerboard squares along x")
+      ->capture_default_str();
+  calibrate_cmd->add_option("--squares-y", calibrate.target.squares_y, "Checkerboard squares along y")
+      ->capture_default_str();
+  calibrate_cmd->add_option("--square-mm", calibrate.target.square_mm, "Checkerboard square size (measured)")
+      ->capture_default_str();
+  calibrate_cmd->add_option("--thickness-mm", calibrate.target.thickness_mm, "Checkerboard plate thickness")
+      ->capture_default_str();
+  calibrate_cmd->add_option("--platform-radius-mm", calibrate.platform_radius_mm, "Turntable platform radius")
+      ->capture_default_str();
+  calibrate_cmd->add_option("--exposure-us", calibrate.exposure_us, "With --connect: exposure per pattern")
+      ->capture_default_str();
+  calibrate_cmd->add_option("--period-us", calibrate.pattern_period_us, "With --connect: pattern period")
+      ->capture_default_str();
+  calibrate_cmd->add_option("--settle-ms", calibrate.settle_ms, "With --connect: turntable settle time")
+      ->capture_default_str();
 
   ImportCommand import;
   auto* import_cmd = app.add_subcommand(

@@ -4,6 +4,8 @@
 #include <cstdio>
 #include <set>
 
+#include "slproto/calibration_poses.hpp"
+
 namespace slproto {
 
 const char* message_type_name(MessageType type) noexcept {
@@ -185,6 +187,8 @@ Status check_scan_request(const pb::ScanRequest& request, std::uint32_t projecto
                std::to_string(request.exposure_us()));
   if (bytes_per_pixel(request.pixel_format()) == 0)
     return bad("pixel_format " + std::to_string(request.pixel_format()) + " is not mono8, mono10 or mono12");
+  if (request.has_calibration_target())
+    if (auto target = from_proto(request.calibration_target()); !target) return target.error();
   return Ok{};
 }
 

@@ -60,6 +60,10 @@ class SimLineRequest;
 struct SimRig::Core {
   BoardConfig board;
   slrig::Scene scene;
+  slrig::Scene board_scene;            // the board file's scene, restored after a calibration target
+  std::uint64_t scene_generation = 0;  // bumped whenever `scene` changes: the renderer is rebuilt
+  std::uint64_t placements = 0;        // calibration targets placed so far (noise seeds)
+  bool target_placed = false;          // `scene` holds a calibration target instead of board_scene's objects
   std::unique_ptr<TurntableEmulator> table;
 
   // Guards all state below. Taken by the real-time sequencer (line writes, frame waits) and by
@@ -317,17 +321,28 @@ void SimRig::Core::run_scheduler() {
 void SimRig::Core::run_camera() {
   std::optional<slrig::ViewRenderer> renderer;
   double renderer_angle = NAN;
-  auto view_index_of = [this](double angle) {
-    for (std::size_t i = 0; i < scene.view_angles_deg.size(); ++i) {
-      const double d = std::remainder(angle - scene.view_angles_deg[i], 360.0);
+  std::uint64_t renderer_generation = 0;
+  auto view_index_of = [](const slrig::Scene& s, double angle) {
+    for (std::size_t i = 0; i < s.view_angles_deg.size(); ++i) {
+      const double d = std::remainder(angle - s.view_angles_deg[i], 360.0);
       if (std::abs(d) < 0.5) return static_cast<int>(i);
     }
     return 0;
   };
+  // Called without the lock. `scene` changes between scans (place_calibration_target), so a
+  // renderer of another generation is rebuilt from a copy taken under the lock.
+  std::optional<slrig::Scene> rendered_scene;
   auto ensure_renderer = [&](double angle) {
-    if (renderer && std::abs(angle - renderer_angle) < 1e-6) return;
-    renderer.emplace(scene, angle, view_index_of(angle));
+    std::uint64_t generation = 0;
+    {
+      std::lock_guard guard(mutex);
+      generation = scene_generation;
+      if (!rendered_scene || generation != renderer_generation) rendered_scene = scene;
+    }
+    if (renderer && std::abs(angle - renderer_angle) < 1e-6 && renderer_generation == generation) return;
+    renderer.emplace(*rendered_scene, angle, view_index_of(*rendered_scene, angle));
     renderer_angle = angle;
+    renderer_generation = generation;
   };
   std::unique_lock lock(mutex);
   while (!quit) {
@@ -512,6 +527,7 @@ slproto::Result<std::shared_ptr<SimRig>> SimRig::create(const BoardConfig& board
     }
     core->scene = std::move(*preset);
   }
+  core->board_scene = core->scene;
   core->projector_exposure_ns = static_cast<Nanos>(board.pattern_exposure_us * kMicro);
   core->camera_exposure_ns = core->projector_exposure_ns;
   for (int side = 0; side < 2; ++side) core->dlp[side].lines = board.projectors[side];
@@ -534,8 +550,51 @@ const slrig::Scene& SimRig::scene() const { return core_->scene; }
 
 void SimRig::load_patterns(const slproto::PatternPlan& plan, Nanos exposure_ns) {
   std::lock_guard lock(core_->mutex);
+  // A renderer is cast for one coding axis and extent (its scene's plan): a plan along the other
+  // axis (calibration scans both) needs a renderer of its own.
+  if (!(core_->scene.pattern_plan == plan.config())) {
+    core_->scene.pattern_plan = plan.config();
+    core_->scene_generation++;
+  }
   core_->plan = plan;
   core_->projector_exposure_ns = exposure_ns;
+}
+
+slproto::Status SimRig::place_calibration_target(const std::optional<slproto::CalibrationTargetPlacement>& target) {
+  std::lock_guard lock(core_->mutex);
+  if (!target) {
+    if (!core_->target_placed) return slproto::Ok{};
+    core_->scene = core_->board_scene;
+    core_->target_placed = false;
+    core_->scene_generation++;
+    return slproto::Ok{};
+  }
+  // The calibration preset's checkerboard (material, plate margins), resized and placed.
+  auto preset = slrig::scene_preset("calibration",
+                                    core_->board.sim_rig_size == "full" ? slrig::RigSize::full : slrig::RigSize::small);
+  if (!preset) return preset.error();
+  slrig::SceneObject board = preset->objects.at(0);
+  // The plate keeps the preset's margin around the squares (the rig needs it to cover them).
+  const double margin_x = board.width - board.squares_x * board.square_mm;
+  const double margin_y = board.height - board.squares_y * board.square_mm;
+  board.squares_x = target->board.squares_x;
+  board.squares_y = target->board.squares_y;
+  board.square_mm = target->board.square_mm;
+  board.thickness = target->board.thickness_mm;
+  board.width = board.squares_x * board.square_mm + margin_x;
+  board.height = board.squares_y * board.square_mm + margin_y;
+  board.on_turntable = target->on_turntable;
+  board.table_from_object = target->pose;
+  slrig::Scene scene = core_->board_scene;
+  scene.name = core_->board_scene.name + " + calibration target (" + target->pose_name + ")";
+  scene.objects = {board};
+  // A new exposure set per placement: the noise differs between placements (and between the
+  // two coding axes of one pose, which are two scans), but not between the views of one scan.
+  scene.sensor.seed = core_->board_scene.sensor.seed + 7919 * ++core_->placements;
+  core_->scene = std::move(scene);
+  core_->target_placed = true;
+  core_->scene_generation++;
+  return slproto::Ok{};
 }
 
 void SimRig::set_faults(const SimFaults& faults) {

@@ -155,6 +155,15 @@ slproto::Status BoardDevices::load_patterns(const slproto::PatternPlan& plan, Na
   return slproto::Ok{};
 }
 
+slproto::Status BoardDevices::place_calibration_target(
+    const std::optional<slproto::CalibrationTargetPlacement>& target) {
+#if defined(SLSCAND_HAVE_SIM)
+  if (sim_rig) return sim_rig->place_calibration_target(target);
+#endif
+  (void)target;
+  return slproto::Ok{};
+}
+
 slproto::Result<BoardDevices> open_board_devices(const BoardConfig& board, const OpenOptions& options) {
   if (auto s = board.check(); !s) return s.error();
   BoardDevices devices;

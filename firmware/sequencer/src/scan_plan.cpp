@@ -54,6 +54,11 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
   plan.trigger_delay_ns = static_cast<Nanos>(request.trigger_delay_us()) * kMicro;
   plan.settle_ns = static_cast<Nanos>(request.settle_ms() != 0 ? request.settle_ms() : board.settle_ms * 1000) * kMicro;
   plan.timing_events = request.timing_events();
+  if (request.has_calibration_target()) {
+    auto target = slproto::from_proto(request.calibration_target());
+    if (!target) return refuse(Errc::invalid_argument, target.error().message);
+    plan.calibration_target = std::move(*target);
+  }
 
   // The DLP4500 shows one 8-bit pattern for at least 8333 us; 1-bit patterns go down to 235 us.
   if (request.exposure_us() < 235) {

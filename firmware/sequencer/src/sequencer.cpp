@@ -168,6 +168,9 @@ void ScanRun::report(pb::ScanState state, std::uint32_t view, double angle, cons
 }
 
 std::optional<Failure> ScanRun::views() {
+  if (auto s = devices_.place_calibration_target(plan_.calibration_target); !s) {
+    return Failure{pb::SCAN_STATE_FAILED, s.error()};
+  }
   if (auto s = devices_.load_patterns(plan_.patterns, plan_.exposure_ns); !s) {
     return Failure{pb::SCAN_STATE_FAILED, s.error()};
   }

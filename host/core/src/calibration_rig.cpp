@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 
@@ -129,6 +130,49 @@ DecodedView decode(ProjectorViewDecoder& decoder, const std::vector<const cv::Ma
   return decoder.finish();
 }
 
+// Stage 1 for one pose: the corners in the camera and each projector's coordinates at them.
+struct PoseMeasurement {
+  bool has_image = false;  // a camera image or a white frame to look for the board in
+  CornerDetection detection;
+  // Per side: nullopt when the projector showed nothing at this pose, or when `missing` says
+  // which frame of its plan is absent.
+  std::array<std::optional<ProjectorCorners>, 2> projectors;
+  std::array<std::string, 2> missing;
+};
+
+PoseMeasurement measure_pose(const PoseFrames& frames, const std::array<slproto::PatternPlan, 2>& plans,
+                             const CheckerboardTarget& target, const CalibrationOptions& options,
+                             std::array<ProjectorViewDecoder, 2>& decoders) {
+  PoseMeasurement out;
+  const cv::Mat image = detection_image(frames, plans);
+  out.has_image = !image.empty();
+  if (!out.has_image) return out;
+  out.detection = detect_checkerboard(image, target, options.detection);
+  if (!out.detection.found) return out;
+  for (std::size_t s = 0; s < 2; ++s) {
+    const auto& sets = frames.patterns[s];
+    if (!any_present(sets[0]) && !any_present(sets[1])) continue;  // this projector showed nothing here
+    for (std::size_t a = 0; a < 2 && out.missing[s].empty(); ++a)
+      if (const int m = first_missing(sets[a]); m >= 0)
+        out.missing[s] = "no frame for pattern " + std::to_string(m) + " (" +
+                         slproto::pattern_kind_name(plans[a][static_cast<std::size_t>(m)].kind) + ") along " +
+                         slproto::coding_axis_name(kAxes[a]);
+    if (!out.missing[s].empty()) continue;
+    const DecodedView columns = decode(decoders[0], sets[0]);
+    const DecodedView rows = decode(decoders[1], sets[1]);
+    out.projectors[s] = projector_corners(out.detection.view, columns, rows, options.projector_corners);
+  }
+  return out;
+}
+
+std::array<ProjectorViewDecoder, 2> make_decoders(const std::array<slproto::PatternPlan, 2>& plans, int width,
+                                                  int height, const CalibrationOptions& options, int bit_depth) {
+  DecodeOptions decode_options = options.decode;
+  decode_options.bit_depth = bit_depth;
+  return {ProjectorViewDecoder(plans[0], width, height, decode_options),
+          ProjectorViewDecoder(plans[1], width, height, decode_options)};
+}
+
 std::string fixed(double value, int digits) {
   char buffer[64];
   std::snprintf(buffer, sizeof buffer, "%.*f", digits, value);
@@ -149,10 +193,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   CalibrationReport& report = result.report;
   report.poses.resize(capture.poses.size());
 
-  DecodeOptions decode_options = options.decode;
-  decode_options.bit_depth = capture.bit_depth;
-  std::array<ProjectorViewDecoder, 2> decoders{ProjectorViewDecoder(plans[0], width, height, decode_options),
-                                               ProjectorViewDecoder(plans[1], width, height, decode_options)};
+  std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
 
   // 1. Corners in the camera, and each projector's coordinates at them.
   std::vector<TargetView> camera_views;
@@ -167,12 +208,12 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
     pr.name = pose.name.empty() ? "pose " + std::to_string(p) : pose.name;
     pr.on_turntable = pose.on_turntable;
     pr.table_angle_deg = pose.table_angle_deg;
-    const cv::Mat image = detection_image(frames[p], plans);
-    if (image.empty()) {
+    PoseMeasurement measured = measure_pose(frames[p], plans, capture.target, options, decoders);
+    if (!measured.has_image) {
       report.skipped.push_back({pr.name, "camera image", "no camera image and no white pattern frame"});
       continue;
     }
-    CornerDetection detection = detect_checkerboard(image, capture.target, options.detection);
+    CornerDetection& detection = measured.detection;
     if (!detection.found) {
       report.skipped.push_back({pr.name, "camera image", detection.reason});
       continue;
@@ -189,21 +230,13 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
       table_pose.push_back(p);
     }
     for (std::size_t s = 0; s < 2; ++s) {
-      const auto& sets = frames[p].patterns[s];
-      if (!any_present(sets[0]) && !any_present(sets[1])) continue;  // this projector showed nothing here
-      std::string missing;
-      for (std::size_t a = 0; a < 2 && missing.empty(); ++a)
-        if (const int m = first_missing(sets[a]); m >= 0)
-          missing = "no frame for pattern " + std::to_string(m) + " (" +
-                    slproto::pattern_kind_name(plans[a][static_cast<std::size_t>(m)].kind) + ") along " +
-                    slproto::coding_axis_name(kAxes[a]);
-      if (!missing.empty()) {
-        report.skipped.push_back({pr.name, side_label(kSides[s]), missing});
+      if (!measured.missing[s].empty()) {
+        report.skipped.push_back({pr.name, side_label(kSides[s]), measured.missing[s]});
         continue;
       }
-      const DecodedView columns = decode(decoders[0], sets[0]);
-      const DecodedView rows = decode(decoders[1], sets[1]);
-      const ProjectorCorners corners = projector_corners(detection.view, columns, rows, options.projector_corners);
+      if (!measured.projectors[s]) continue;  // this projector showed nothing here
+      ProjectorCorners& corners = *measured.projectors[s];
+      corners.view.name = pr.name;
       pr.projector_corners[s] = static_cast<int>(corners.view.corners.size());
       pr.local_fit_rms_px[s] = corners.view.corners.empty() ? -1 : corners.mean_fit_rms_px;
       if (corners.view.corners.size() < 6) {
@@ -350,6 +383,40 @@ std::string CalibrationReport::summary() const {
   }
   for (const SkippedImage& s : skipped) out << "skipped " << s.pose << ", " << s.what << ": " << s.reason << "\n";
   return out.str();
+}
+
+CalibrationPoseCheck check_calibration_pose(const CalibrationCapture& capture, int pose,
+                                            const CalibrationOptions& options) {
+  capture.target.check();
+  const std::array<slproto::PatternPlan, 2> plans{capture.plan(CodingAxis::columns), capture.plan(CodingAxis::rows)};
+  int width = 0, height = 0;
+  const std::vector<PoseFrames> frames = index_frames(capture, plans, width, height);
+  if (pose < 0 || pose >= static_cast<int>(frames.size()))
+    throw std::invalid_argument("check_calibration_pose: pose " + std::to_string(pose) + " of " +
+                                std::to_string(frames.size()));
+  std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
+  const PoseMeasurement measured =
+      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options, decoders);
+  CalibrationPoseCheck check;
+  check.corners = capture.target.corner_count();
+  check.board_found = measured.detection.found;
+  check.reason = measured.has_image ? measured.detection.reason : "no camera image and no white pattern frame";
+  for (std::size_t s = 0; s < 2; ++s)
+    if (measured.projectors[s]) check.lit_corners[s] = static_cast<int>(measured.projectors[s]->view.corners.size());
+  return check;
+}
+
+std::string CalibrationPoseCheck::problem(double min_lit_fraction) const {
+  if (!board_found) return "the board was not found (" + reason + ")";
+  std::string problem;
+  for (std::size_t s = 0; s < 2; ++s)
+    if (lit_corners[s] < min_lit_fraction * corners) {
+      if (!problem.empty()) problem += "; ";
+      problem += std::string("the ") + slproto::projector_side_name(kSides[s]) + " projector lights " +
+                 std::to_string(lit_corners[s]) + " of its " + std::to_string(corners) + " corners (" +
+                 fixed(100.0 * min_lit_fraction, 0) + " % wanted: turn the board toward it or move it into its light)";
+    }
+  return problem;
 }
 
 }  // namespace slscan::core

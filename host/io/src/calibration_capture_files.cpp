@@ -124,51 +124,74 @@ core::CalibrationCapture read_calibration_capture(const std::string& folder) {
   }
 }
 
+namespace {
+
+json manifest(const core::CalibrationCapture& capture) {
+  json poses = json::array();
+  for (const core::CalibrationPose& pose : capture.poses)
+    poses.push_back(
+        {{"name", pose.name}, {"on_turntable", pose.on_turntable}, {"table_angle_deg", pose.table_angle_deg}});
+  json frames = json::array();
+  for (const core::CalibrationFrame& frame : capture.frames) {
+    json entry = {{"pose", frame.pose}, {"kind", kind_name(frame.kind)}, {"file", frame_file(frame)}};
+    if (frame.kind == core::CalibrationFrame::Kind::pattern) {
+      entry["projector"] = slproto::projector_side_name(frame.side);
+      entry["axis"] = slproto::coding_axis_name(frame.axis);
+      entry["pattern"] = frame.pattern_index;
+    }
+    frames.push_back(std::move(entry));
+  }
+  return {{"format", kFormat},
+          {"format_version", kFormatVersion},
+          {"target",
+           {{"squares_x", capture.target.squares_x},
+            {"squares_y", capture.target.squares_y},
+            {"square_mm", capture.target.square_mm},
+            {"thickness_mm", capture.target.thickness_mm}}},
+          {"pattern_plan", slproto::pattern_plan_to_json(capture.pattern_plan)},
+          {"bit_depth", capture.bit_depth},
+          {"platform_radius_mm", capture.platform_radius_mm},
+          {"source", capture.source},
+          {"poses", poses},
+          {"frames", frames}};
+}
+
+void write_frame(const core::CalibrationFrame& frame, const fs::path& folder) {
+  const std::string name = frame_file(frame);
+  fs::create_directories((folder / name).parent_path());
+  // Fast compression: sensor noise barely compresses, and a full-resolution capture is 766 frames.
+  if (!cv::imwrite((folder / name).string(), frame.image, {cv::IMWRITE_PNG_COMPRESSION, 1}))
+    throw IoError((folder / name).string() + ": cannot write");
+}
+
+void write_manifest(const core::CalibrationCapture& capture, const fs::path& folder) {
+  if (auto status = slproto::write_file_atomically((folder / "manifest.json").string(), manifest(capture).dump(1));
+      !status)
+    throw IoError(status.error().message);
+}
+
+}  // namespace
+
 void write_calibration_capture(const core::CalibrationCapture& capture, const std::string& folder) {
   if (fs::exists(folder)) throw IoError(folder + ": already exists (not overwritten)");
   const fs::path tmp = folder + ".tmp." + std::to_string(::getpid());
   std::error_code ec;
   fs::remove_all(tmp, ec);
   try {
-    json poses = json::array();
-    for (const core::CalibrationPose& pose : capture.poses)
-      poses.push_back(
-          {{"name", pose.name}, {"on_turntable", pose.on_turntable}, {"table_angle_deg", pose.table_angle_deg}});
-    json frames = json::array();
-    for (const core::CalibrationFrame& frame : capture.frames) {
-      const std::string name = frame_file(frame);
-      fs::create_directories((tmp / name).parent_path());
-      // Fast compression: sensor noise barely compresses, and a full-resolution capture is 766 frames.
-      if (!cv::imwrite((tmp / name).string(), frame.image, {cv::IMWRITE_PNG_COMPRESSION, 1}))
-        throw IoError((tmp / name).string() + ": cannot write");
-      json entry = {{"pose", frame.pose}, {"kind", kind_name(frame.kind)}, {"file", name}};
-      if (frame.kind == core::CalibrationFrame::Kind::pattern) {
-        entry["projector"] = slproto::projector_side_name(frame.side);
-        entry["axis"] = slproto::coding_axis_name(frame.axis);
-        entry["pattern"] = frame.pattern_index;
-      }
-      frames.push_back(std::move(entry));
-    }
-    const json doc = {{"format", kFormat},
-                      {"format_version", kFormatVersion},
-                      {"target",
-                       {{"squares_x", capture.target.squares_x},
-                        {"squares_y", capture.target.squares_y},
-                        {"square_mm", capture.target.square_mm},
-                        {"thickness_mm", capture.target.thickness_mm}}},
-                      {"pattern_plan", slproto::pattern_plan_to_json(capture.pattern_plan)},
-                      {"bit_depth", capture.bit_depth},
-                      {"platform_radius_mm", capture.platform_radius_mm},
-                      {"source", capture.source},
-                      {"poses", poses},
-                      {"frames", frames}};
-    if (auto status = slproto::write_file_atomically((tmp / "manifest.json").string(), doc.dump(1)); !status)
-      throw IoError(status.error().message);
+    for (const core::CalibrationFrame& frame : capture.frames) write_frame(frame, tmp);
+    write_manifest(capture, tmp);
     fs::rename(tmp, folder);
   } catch (...) {
     fs::remove_all(tmp, ec);
     throw;
   }
+}
+
+void write_calibration_capture_pose(const core::CalibrationCapture& capture, int pose, const std::string& folder) {
+  fs::create_directories(folder);
+  for (const core::CalibrationFrame& frame : capture.frames)
+    if (frame.pose == pose) write_frame(frame, folder);
+  write_manifest(capture, folder);
 }
 
 }  // namespace slscan::io

@@ -4,8 +4,10 @@
 
 #include <array>
 #include <memory>
+#include <optional>
 #include <string>
 
+#include "slproto/calibration_poses.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slproto/result.hpp"
 #include "slscand/hal/board.hpp"
@@ -38,6 +40,11 @@ struct BoardDevices {
   // Puts the plan's patterns and the exposure into the projectors' memory. On hardware the
   // DLPC350 is flashed beforehand (docs/hardware.md), so this only checks the plan fits.
   slproto::Status load_patterns(const slproto::PatternPlan& plan, Nanos exposure_ns);
+  // A simulated board puts its checkerboard where the request says (nullopt: back to the
+  // board's own scene); on hardware the user places the board, so this does nothing.
+  slproto::Status place_calibration_target(const std::optional<slproto::CalibrationTargetPlacement>& target);
+  // Whether place_calibration_target does anything here (CAPABILITY_CALIBRATION_TARGET).
+  bool places_calibration_target() const { return sim_rig != nullptr; }
 };
 
 struct OpenOptions {

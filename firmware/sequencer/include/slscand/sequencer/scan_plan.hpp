@@ -4,8 +4,10 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
+#include "slproto/calibration_poses.hpp"
 #include "slproto/messages.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slscand/hal/board.hpp"
@@ -23,6 +25,9 @@ struct ScanPlan {
   Nanos settle_ns = 0;
   hal::PixelFormat pixel_format = hal::PixelFormat::mono8;
   bool timing_events = true;
+  // ScanRequest.calibration_target: where a simulated board puts its checkerboard (hardware
+  // ignores it; the user places the board).
+  std::optional<slproto::CalibrationTargetPlacement> calibration_target;
   std::uint64_t frames_total() const { return angles_deg.size() * projectors.size() * patterns.size(); }
 };
 

@@ -122,4 +122,19 @@ struct RigCalibrationResult {
 
 RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const CalibrationOptions& options = {});
 
+// One pose of a capture as calibrate_rig sees it (the same detection and decoding), for a
+// guided capture to say at once whether the pose is usable: the board found, and how many of
+// its inner corners each projector lights (gives coordinates at).
+struct CalibrationPoseCheck {
+  bool board_found = false;
+  std::string reason;  // why not, when !board_found
+  int corners = 0;     // the target's inner corners
+  std::array<int, 2> lit_corners{0, 0};
+  // "" when the board was found and each projector lights at least `min_lit_fraction` of the
+  // corners; else what is wrong, in words for the user.
+  std::string problem(double min_lit_fraction = 0.75) const;
+};
+CalibrationPoseCheck check_calibration_pose(const CalibrationCapture& capture, int pose,
+                                            const CalibrationOptions& options = {});
+
 }  // namespace slscan::core

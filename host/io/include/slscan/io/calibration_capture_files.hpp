@@ -17,4 +17,11 @@ core::CalibrationCapture read_calibration_capture(const std::string& folder);
 // renamed into place at the end (an existing `folder` is an error, nothing is overwritten).
 void write_calibration_capture(const core::CalibrationCapture& capture, const std::string& folder);
 
+// For a capture taken pose by pose (`slscan calibrate --connect`): writes the images of pose
+// `pose` into `folder` (created if needed), then replaces manifest.json atomically with one
+// listing every pose and frame of `capture`. The folder therefore always reads back as the
+// poses completed so far: images of a pose cut short are on disk but not in the manifest, and
+// are overwritten when it is taken again.
+void write_calibration_capture_pose(const core::CalibrationCapture& capture, int pose, const std::string& folder);
+
 }  // namespace slscan::io

@@ -16,8 +16,10 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <vector>
 
+#include "slproto/calibration_poses.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slrig/rig.hpp"
 #include "slscand/hal/board.hpp"
@@ -67,6 +69,11 @@ class SimRig {
   // "Flashes" the projectors' pattern memory and exposure (a real DLPC350 is loaded over USB
   // beforehand). Until then the projectors show the scene's own plan at the board's exposure.
   void load_patterns(const slproto::PatternPlan& plan, Nanos exposure_ns);
+  // Replaces the scene's objects by the requested checkerboard at the requested pose
+  // (ScanRequest.calibration_target), rendered as the rig's calibration preset renders its
+  // board; nullopt restores the board's own scene. Each placement renders with its own noise
+  // (separate exposures), the same for every view of the scan.
+  slproto::Status place_calibration_target(const std::optional<slproto::CalibrationTargetPlacement>& target);
   void set_faults(const SimFaults& faults);
   std::vector<RecordedEdge> recorded_edges() const;
   std::vector<ExposureRecord> exposures() const;
