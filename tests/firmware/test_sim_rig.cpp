@@ -3,6 +3,9 @@
 // what slrig renders for the lit pattern, the bus records every edge, faults behave.
 #include <gtest/gtest.h>
 
+#include <chrono>
+#include <thread>
+
 #include "slscand/hal/backends.hpp"
 #include "slscand/hal/sim/sim_rig.hpp"
 
@@ -113,4 +116,40 @@ TEST(SimRig, RefusesAFormatItCannotRenderAndBusyLines) {
   auto request = devices->chip->request_lines(config);
   ASSERT_FALSE(request.ok());
   EXPECT_NE(request.error().message.find("line 17 (intruder) is already requested"), std::string::npos);
+}
+
+// A scene the renderer cannot draw (here a mesh file that is not there) is the frame's error,
+// named by wait_frame; before, the renderer's exception left the camera thread and ended the
+// process (slscand). The camera keeps answering: the next wait says the same, nothing hangs.
+TEST(SimRig, AFrameTheRendererCannotDrawIsAnErrorNotACrash) {
+  const BoardConfig board = sim_board();
+  slrig::Scene scene =
+      slrig::scene_preset(board.sim_scene, board.sim_rig_size == "full" ? slrig::RigSize::full : slrig::RigSize::small)
+          .value();
+  ASSERT_FALSE(scene.objects.empty());
+  scene.objects[0].kind = slrig::ObjectKind::mesh;
+  scene.objects[0].mesh_path = "/nonexistent/slscan_sim_rig_missing.stl";
+  scene.objects[0].mesh_scale = 1;
+  OpenOptions options;
+  options.sim_scene = &scene;
+  auto devices = open_board_devices(board, options);
+  ASSERT_TRUE(devices.ok()) << devices.error().message;
+  std::this_thread::sleep_for(std::chrono::milliseconds(50));  // the idle warm-up meets the scene first
+  Camera& camera = *devices->camera;
+  ASSERT_TRUE(camera.start().ok());
+  DlpProjector& left = *devices->projectors[0];
+  ASSERT_TRUE(left.start().ok());
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    ASSERT_TRUE(left.advance().ok());
+    ASSERT_TRUE(left.wait_exposure_start(kSecond).ok());
+    auto frame = camera.wait_frame(20 * kSecond);
+    ASSERT_FALSE(frame.ok());
+    EXPECT_EQ(frame.error().code, slproto::Errc::hardware);
+    EXPECT_NE(frame.error().message.find("sim camera: cannot render the scene"), std::string::npos)
+        << frame.error().message;
+    EXPECT_NE(frame.error().message.find("slscan_sim_rig_missing.stl"), std::string::npos) << frame.error().message;
+    ASSERT_TRUE(left.wait_exposure_end(kSecond).ok());
+  }
+  ASSERT_TRUE(left.stop().ok());
+  ASSERT_TRUE(camera.stop().ok());
 }

@@ -16,6 +16,7 @@
 #include <sstream>
 #include <thread>
 
+#include "slproto/calibration_poses.hpp"
 #include "slproto/handshake.hpp"
 #include "slproto/status.hpp"
 #include "slproto/transport.hpp"
@@ -372,6 +373,29 @@ TEST_F(DaemonFixture, RefusedAndBusyRequests) {
   EXPECT_EQ(first.done->final_state(), pb::SCAN_STATE_DONE);
   ASSERT_EQ(first.errors.size(), 1u);
   EXPECT_EQ(slproto::errc_from_wire(first.errors[0].code()), slproto::Errc::busy);
+}
+
+// A calibration target the sim board cannot draw (a board of no thickness passes the protocol's
+// check: a printed sheet is that thin) is the scan's error, naming the pose and the field; the
+// daemon keeps serving. Before, the renderer's exception in the camera thread ended slscand.
+TEST_F(DaemonFixture, ACalibrationTargetTheSimCannotDrawFailsTheScanNotTheDaemon) {
+  start();
+  slproto::Connection c = connect();
+  const slproto::GuidedCalibrationPose& pose = slproto::calibration_pose_guide().front();
+  pb::ScanRequest scan = request(40, 1);
+  *scan.mutable_calibration_target() = slproto::to_proto(pose, slproto::CheckerboardSize{9, 7, 15, 0});
+  ASSERT_TRUE(c.send(scan).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_NE(r.errors[0].text().find("sim board: cannot place the calibration target '" + pose.name + "'"),
+            std::string::npos)
+      << r.errors[0].text();
+  EXPECT_NE(r.errors[0].text().find("thickness must be > 0"), std::string::npos) << r.errors[0].text();
+  EXPECT_TRUE(r.frames.empty());
+  expect_dark_and_idle();
+  expect_next_scan_runs(c, 41);
 }
 
 TEST_F(DaemonFixture, TimingLogIsWrittenOnTheBoard) {

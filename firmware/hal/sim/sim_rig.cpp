@@ -105,6 +105,10 @@ struct SimRig::Core {
   std::uint64_t fault_base_sequence = 0;  // camera_sequence when the faults were set
   std::deque<CameraJob> jobs;
   std::deque<Frame> frames;
+  // Why the last frame could not be rendered (the renderer threw: a scene it cannot draw). The
+  // frame is not delivered; wait_frame reports this instead, and the camera thread goes on
+  // serving. Cleared by the camera's start() and stop().
+  std::string render_error;
   std::vector<ExposureRecord> exposures;
   CameraFormat format;
 
@@ -330,19 +334,30 @@ void SimRig::Core::run_camera() {
     return 0;
   };
   // Called without the lock. `scene` changes between scans (place_calibration_target), so a
-  // renderer of another generation is rebuilt from a copy taken under the lock.
+  // renderer of another generation is rebuilt from a copy taken under the lock. A scene the
+  // renderer refuses (it throws) leaves no renderer and returns why; the same scene and angle
+  // are not tried again (the idle warm-up would otherwise retry it every few milliseconds).
   std::optional<slrig::Scene> rendered_scene;
-  auto ensure_renderer = [&](double angle) {
+  std::string renderer_error;
+  auto ensure_renderer = [&](double angle) -> bool {
     std::uint64_t generation = 0;
     {
       std::lock_guard guard(mutex);
       generation = scene_generation;
       if (!rendered_scene || generation != renderer_generation) rendered_scene = scene;
     }
-    if (renderer && std::abs(angle - renderer_angle) < 1e-6 && renderer_generation == generation) return;
-    renderer.emplace(*rendered_scene, angle, view_index_of(*rendered_scene, angle));
+    const bool same = std::abs(angle - renderer_angle) < 1e-6 && renderer_generation == generation;
+    if (same && (renderer || !renderer_error.empty())) return renderer.has_value();
+    renderer.reset();
+    renderer_error.clear();
     renderer_angle = angle;
     renderer_generation = generation;
+    try {
+      renderer.emplace(*rendered_scene, angle, view_index_of(*rendered_scene, angle));
+    } catch (const std::exception& e) {
+      renderer_error = e.what();
+    }
+    return renderer.has_value();
   };
   std::unique_lock lock(mutex);
   while (!quit) {
@@ -352,7 +367,7 @@ void SimRig::Core::run_camera() {
         // Warm the renderer for the table's new position while the sequencer waits to settle.
         const double angle = table->angle_deg();
         lock.unlock();
-        ensure_renderer(angle);
+        (void)ensure_renderer(angle);
         lock.lock();
       }
       continue;
@@ -366,18 +381,30 @@ void SimRig::Core::run_camera() {
                              job.sequence == fault_base_sequence + static_cast<std::uint64_t>(faults.short_frame_after);
     lock.unlock();
 
-    ensure_renderer(table->angle_deg());
+    // The renderer throws on what it cannot draw (a scene it refuses, a plan it was not cast
+    // for): that is this frame's error, reported by wait_frame, never an exception leaving the
+    // thread (which would end slscand).
     Frame frame;
-    frame.format = frame_format;
-    frame.pixels.resize(renderer->frame_bytes());
-    if (job.side < 0) {
-      renderer->render_ambient(frame.pixels);
-    } else if (frame_plan) {
-      renderer->render(static_cast<slproto::ProjectorSide>(job.side), *frame_plan,
-                       static_cast<std::size_t>(job.pattern_index), frame.pixels);
+    std::string error;
+    const double angle = table->angle_deg();
+    if (!ensure_renderer(angle)) {
+      error = "cannot render the scene at " + std::to_string(angle) + " deg: " + renderer_error;
     } else {
-      renderer->render(static_cast<slproto::ProjectorSide>(job.side), static_cast<std::size_t>(job.pattern_index),
-                       frame.pixels);
+      try {
+        frame.format = frame_format;
+        frame.pixels.resize(renderer->frame_bytes());
+        if (job.side < 0) {
+          renderer->render_ambient(frame.pixels);
+        } else if (frame_plan) {
+          renderer->render(static_cast<slproto::ProjectorSide>(job.side), *frame_plan,
+                           static_cast<std::size_t>(job.pattern_index), frame.pixels);
+        } else {
+          renderer->render(static_cast<slproto::ProjectorSide>(job.side), static_cast<std::size_t>(job.pattern_index),
+                           frame.pixels);
+        }
+      } catch (const std::exception& e) {
+        error = std::string("cannot render frame ") + std::to_string(job.sequence) + ": " + e.what();
+      }
     }
     if (short_frame) frame.pixels.resize(frame.pixels.size() / 2);
     frame.sequence = job.sequence;
@@ -386,7 +413,11 @@ void SimRig::Core::run_camera() {
 
     lock.lock();
     if (generation == camera_generation) {
-      frames.push_back(std::move(frame));
+      if (error.empty()) {
+        frames.push_back(std::move(frame));
+      } else {
+        render_error = std::move(error);
+      }
       camera_cv.notify_all();
     }
   }
@@ -483,6 +514,7 @@ class SimCamera final : public Camera {
     core_->camera_generation++;
     core_->jobs.clear();
     core_->frames.clear();
+    core_->render_error.clear();
     core_->camera_started = true;
     return slproto::Ok{};
   }
@@ -492,12 +524,18 @@ class SimCamera final : public Camera {
     core_->camera_generation++;
     core_->jobs.clear();
     core_->frames.clear();
+    core_->render_error.clear();
     return slproto::Ok{};
   }
   Result<Frame> wait_frame(Nanos timeout_ns) override {
     std::unique_lock lock(core_->mutex);
-    const bool got = core_->camera_cv.wait_until(lock, to_steady(monotonic_now_ns() + timeout_ns),
-                                                 [&] { return !core_->frames.empty() || core_->quit; });
+    const bool got = core_->camera_cv.wait_until(lock, to_steady(monotonic_now_ns() + timeout_ns), [&] {
+      return !core_->frames.empty() || !core_->render_error.empty() || core_->quit;
+    });
+    if (core_->frames.empty() && !core_->render_error.empty()) {
+      // The frames before the failed one were delivered; this one never will be.
+      return make_error(Errc::hardware, "sim camera: " + core_->render_error);
+    }
     if (!got || core_->frames.empty()) {
       return make_error(Errc::timeout,
                         "sim camera: no frame within " + std::to_string(timeout_ns / kMilli) + " ms of waiting");
@@ -588,6 +626,11 @@ slproto::Status SimRig::place_calibration_target(const std::optional<slproto::Ca
   slrig::Scene scene = core_->board_scene;
   scene.name = core_->board_scene.name + " + calibration target (" + target->pose_name + ")";
   scene.objects = {board};
+  // A target the rig cannot draw (a board of no thickness, ...) is this scan's error, named
+  // here: the board's scene stays as it was.
+  if (auto status = slrig::check_scene(scene); !status)
+    return make_error(Errc::invalid_argument, "sim board: cannot place the calibration target '" + target->pose_name +
+                                                  "': " + status.error().message);
   // A new exposure set per placement: the noise differs between placements (and between the
   // two coding axes of one pose, which are two scans), but not between the views of one scan.
   scene.sensor.seed = core_->board_scene.sensor.seed + 7919 * ++core_->placements;

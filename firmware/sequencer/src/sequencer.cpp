@@ -307,7 +307,8 @@ std::optional<Failure> ScanRun::collect(std::deque<SequencedFrame>& awaiting, co
     if (!frame) {
       if (frame.error().code == Errc::timeout && monotonic_now_ns() < due) return std::nullopt;  // not yet
       auto error = frame.error();
-      error.message = "camera timeout at view " + std::to_string(view.index) + ", " +
+      error.message = std::string(error.code == Errc::timeout ? "camera timeout" : "camera error") + " at view " +
+                      std::to_string(view.index) + ", " +
                       slproto::projector_side_name(static_cast<slproto::ProjectorSide>(projector_id)) +
                       " projector, pattern " + std::to_string(item.pattern_index) + ": " + error.message;
       return Failure{pb::SCAN_STATE_FAILED, error};
