@@ -4,8 +4,9 @@
 // table poses, the host checks each pose and writes the capture folder pose by pose, then
 // solves. Checked: the calibration against the rig's truth (the tolerances of
 // tests/host/test_calibration_rig.cpp, which calibrates the virtual rig's rendered capture), the
-// folder recalibrating to the identical file, and a capture cut by slscand dying: a clear
-// message, the completed poses kept, and --resume finishing the capture.
+// folder recalibrating to the identical file, a capture cut by slscand dying: a clear
+// message, the completed poses kept, and --resume finishing the capture; the user quitting
+// (poses kept, coverage shown per pose) and a pose taken again refused as too similar.
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -37,14 +38,14 @@ std::string read_bytes(const fs::path& path) {
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
-// A child process with stdin from /dev/null and stdout / stderr in files.
+// A child process with stdin from a file (/dev/null unless given) and stdout / stderr in files.
 class Child {
  public:
-  Child(std::vector<std::string> args, const fs::path& log_stem)
+  Child(std::vector<std::string> args, const fs::path& log_stem, const std::string& stdin_path = "/dev/null")
       : out_(log_stem.string() + ".out"), err_(log_stem.string() + ".err"), name_(args.at(0)) {
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
+    posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, stdin_path.c_str(), O_RDONLY, 0);
     posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, out_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, err_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     std::vector<char*> argv;
@@ -271,6 +272,58 @@ TEST_F(CalibrateConnect, DisconnectKeepsThePosesAndResumeCompletes) {
   EXPECT_EQ(poses_in(folder), 20u);
   EXPECT_EQ(read_bytes(folder / "pose00" / "left_columns_00.png"), first_pose_image);  // kept, not retaken
   expect_close_to_the_rigs_truth(dir_ / "calib.json", dir_ / "report.json");
+}
+
+// The user at the keyboard: Enter, Enter, then q before the third pose. The two poses taken are
+// in the folder and the message says how to resume. Then the folder is made to hold 'free 1'
+// under the name 'free 0' (as if the user had set the second pose for the first): resuming with
+// --auto takes 'free 1' again, which is refused as too similar, naming both, exit 4.
+TEST_F(CalibrateConnect, QuitKeepsThePosesAndAPoseTakenAgainIsRefused) {
+  const fs::path folder = dir_ / "capture";
+  {
+    std::ofstream keys(dir_ / "keys");
+    keys << "\n\nq\n";
+  }
+  Slscand daemon(dir_ / "slscand");
+  Child calibrate(
+      {SLSCAN_BIN, "calibrate", "--connect", daemon.address(), "--exposure-us", "2000", "--period-us", "5000",
+       "--settle-ms", "50", "--write-capture", folder.string(), "--out", (dir_ / "calib.json").string()},
+      dir_ / "quit", (dir_ / "keys").string());
+  EXPECT_EQ(calibrate.wait(std::chrono::seconds(900)), 130) << calibrate.err();  // as Ctrl-C
+  const std::string err = calibrate.err();
+  EXPECT_NE(err.find("stopped before free 2: the 2 complete poses are in " + folder.string() + " (--resume " +
+                     folder.string() + " continues)"),
+            std::string::npos)
+      << err;
+  // The live coverage after each pose: the share of the image, no depth before 3 poses.
+  EXPECT_NE((err + calibrate.out()).find("free 1: coverage image "), std::string::npos) << err << calibrate.out();
+  EXPECT_NE((err + calibrate.out()).find("depth after 3 poses over 2 poses"), std::string::npos) << err;
+  EXPECT_FALSE(fs::exists(dir_ / "calib.json"));
+  ASSERT_EQ(poses_in(folder), 2u);
+
+  // 'free 1''s frames as pose 0, named 'free 0'.
+  json manifest = json::parse(read_bytes(folder / "manifest.json"));
+  json frames = json::array();
+  for (json frame : manifest.at("frames"))
+    if (frame.at("pose").get<int>() == 1) {
+      frame["pose"] = 0;
+      frames.push_back(frame);
+    }
+  ASSERT_FALSE(frames.empty());
+  manifest["frames"] = frames;
+  manifest["poses"].erase(1);
+  std::ofstream(folder / "manifest.json") << manifest.dump(1);
+
+  Child resume(
+      {SLSCAN_BIN, "calibrate", "--connect", daemon.address(), "--auto", "--exposure-us", "2000", "--period-us", "5000",
+       "--settle-ms", "50", "--resume", folder.string(), "--out", (dir_ / "calib.json").string()},
+      dir_ / "resume");
+  EXPECT_EQ(resume.wait(std::chrono::seconds(900)), 4) << resume.err();
+  const std::string refused = resume.err();
+  EXPECT_NE(refused.find("free 1: too similar to 'free 0'"), std::string::npos) << refused;
+  EXPECT_NE(refused.find("the 1 complete pose is in " + folder.string()), std::string::npos) << refused;
+  EXPECT_EQ(poses_in(folder), 1u);
+  EXPECT_FALSE(fs::exists(dir_ / "calib.json"));
 }
 
 }  // namespace

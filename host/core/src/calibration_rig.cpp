@@ -142,13 +142,13 @@ struct PoseMeasurement {
 
 PoseMeasurement measure_pose(const PoseFrames& frames, const std::array<slproto::PatternPlan, 2>& plans,
                              const CheckerboardTarget& target, const CalibrationOptions& options,
-                             std::array<ProjectorViewDecoder, 2>& decoders) {
+                             std::array<ProjectorViewDecoder, 2>& decoders, bool projectors = true) {
   PoseMeasurement out;
   const cv::Mat image = detection_image(frames, plans);
   out.has_image = !image.empty();
   if (!out.has_image) return out;
   out.detection = detect_checkerboard(image, target, options.detection);
-  if (!out.detection.found) return out;
+  if (!out.detection.found || !projectors) return out;
   for (std::size_t s = 0; s < 2; ++s) {
     const auto& sets = frames.patterns[s];
     if (!any_present(sets[0]) && !any_present(sets[1])) continue;  // this projector showed nothing here
@@ -386,7 +386,7 @@ std::string CalibrationReport::summary() const {
 }
 
 CalibrationPoseCheck check_calibration_pose(const CalibrationCapture& capture, int pose,
-                                            const CalibrationOptions& options) {
+                                            const CalibrationOptions& options, bool projectors) {
   capture.target.check();
   const std::array<slproto::PatternPlan, 2> plans{capture.plan(CodingAxis::columns), capture.plan(CodingAxis::rows)};
   int width = 0, height = 0;
@@ -396,10 +396,13 @@ CalibrationPoseCheck check_calibration_pose(const CalibrationCapture& capture, i
                                 std::to_string(frames.size()));
   std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
   const PoseMeasurement measured =
-      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options, decoders);
+      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options, decoders, projectors);
   CalibrationPoseCheck check;
   check.corners = capture.target.corner_count();
   check.board_found = measured.detection.found;
+  check.width = width;
+  check.height = height;
+  if (check.board_found) check.camera_corners = measured.detection.view;
   check.reason = measured.has_image ? measured.detection.reason : "no camera image and no white pattern frame";
   for (std::size_t s = 0; s < 2; ++s)
     if (measured.projectors[s]) check.lit_corners[s] = static_cast<int>(measured.projectors[s]->view.corners.size());

@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <optional>
 
 #include "slscan/io/calibration_capture_files.hpp"
 #include "slscan/io/ply.hpp"
@@ -35,9 +36,10 @@ slproto::pb::PixelFormat pixel_format_of(int bit_depth) {
 std::string where_kept(const CalibrationCaptureRequest& request, std::size_t poses) {
   if (poses == 0) return "no pose was complete";
   if (request.folder.empty())
-    return std::to_string(poses) + " poses were complete (give --write-capture DIR to keep them on disk)";
-  return "the " + std::to_string(poses) + " complete poses are in " + request.folder + " (--resume " + request.folder +
-         " continues)";
+    return std::to_string(poses) + (poses == 1 ? " pose was" : " poses were") +
+           " complete (give --write-capture DIR to keep them on disk)";
+  return "the " + std::to_string(poses) + (poses == 1 ? " complete pose is in " : " complete poses are in ") +
+         request.folder + " (--resume " + request.folder + " continues)";
 }
 
 // One scan of one pose along one axis: both projectors' plans at one table angle.
@@ -204,6 +206,17 @@ core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& re
                       " to continue that capture, or another folder)");
   }
 
+  // The boards of the poses taken (resumed ones included): a new pose must differ from them.
+  std::vector<core::PoseFootprint> taken;
+  int width = 0, height = 0;
+  for (std::size_t p = 0; p < capture.poses.size(); ++p) {
+    const core::CalibrationPoseCheck check = core::check_calibration_pose(capture, static_cast<int>(p), {}, false);
+    width = check.width;
+    height = check.height;
+    if (check.board_found)
+      taken.push_back(core::pose_footprint(capture.poses[p].name, check.camera_corners, capture.target));
+  }
+
   PoseScanner scanner_pass(request, scanner, bit_depth, places_target);
   for (std::size_t p = capture.poses.size(); p < guide.size(); ++p) {
     const GuidedCalibrationPose& guided = guide[p];
@@ -231,7 +244,18 @@ core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& re
       if (check.board_found)
         log.info(guided.name + ": board found (" + std::to_string(check.corners) + " corners), left projector lights " +
                  std::to_string(check.lit_corners[0]) + ", right " + std::to_string(check.lit_corners[1]));
-      if (problem.empty()) break;
+      std::optional<core::PoseFootprint> footprint;
+      if (problem.empty()) {
+        width = check.width;
+        height = check.height;
+        footprint = core::pose_footprint(guided.name, check.camera_corners, capture.target);
+        if (request.min_pose_shift > 0) problem = core::too_similar_problem(*footprint, taken, request.min_pose_shift);
+      }
+      if (problem.empty()) {
+        taken.push_back(std::move(*footprint));
+        log.info(guided.name + ": coverage " + core::pose_set_coverage(capture.target, taken, width, height).summary());
+        break;
+      }
       log.warn(guided.name + ": " + problem);
       // Not kept: the next attempt (or the next run, --resume) takes this pose again.
       std::erase_if(capture.frames, [&](const core::CalibrationFrame& f) { return f.pose == pose; });

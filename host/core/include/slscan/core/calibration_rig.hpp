@@ -130,11 +130,14 @@ struct CalibrationPoseCheck {
   std::string reason;  // why not, when !board_found
   int corners = 0;     // the target's inner corners
   std::array<int, 2> lit_corners{0, 0};
+  TargetView camera_corners;  // the board's corners in the camera image, when found
+  int width = 0, height = 0;  // of the camera image
   // "" when the board was found and each projector lights at least `min_lit_fraction` of the
   // corners; else what is wrong, in words for the user.
   std::string problem(double min_lit_fraction = 0.75) const;
 };
+// `projectors` false: the board only (lit_corners stay 0), for poses checked before.
 CalibrationPoseCheck check_calibration_pose(const CalibrationCapture& capture, int pose,
-                                            const CalibrationOptions& options = {});
+                                            const CalibrationOptions& options = {}, bool projectors = true);
 
 }  // namespace slscan::core

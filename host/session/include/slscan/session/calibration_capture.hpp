@@ -2,7 +2,9 @@
 // each pose of slproto::calibration_pose_guide the user sets the checkerboard (or, on a board
 // offering CAPABILITY_CALIBRATION_TARGET, the simulated board places it), the board runs the
 // pattern plan along columns and then rows for both projectors, and the host checks at once
-// that the board is found and lit (core::check_calibration_pose). Turntable poses are stepped
+// that the board is found and lit (core::check_calibration_pose) and that the pose is not one
+// taken already (core::too_similar_problem); after each pose the log says how the poses cover
+// the image and the depths (core::pose_set_coverage). Turntable poses are stepped
 // by the board (ScanRequest.turntable_angles_deg). Each accepted pose is written to the capture
 // folder before the next one starts, so an interrupted capture resumes where it stopped.
 #pragma once
@@ -13,6 +15,7 @@
 #include <string>
 
 #include "slproto/calibration_poses.hpp"
+#include "slscan/core/calibration_coverage.hpp"
 #include "slscan/core/calibration_rig.hpp"
 #include "slscan/session/scanner_connection.hpp"
 #include "slscan/session/session_log.hpp"
@@ -35,7 +38,10 @@ struct CalibrationCaptureRequest {
   std::uint32_t settle_ms = 200;
   std::chrono::milliseconds stall_timeout{60000};  // no frame for this long: the scanner is stuck
   double min_lit_fraction = 0.75;                  // of the board's corners, per projector (core::CalibrationPoseCheck)
-  StopFlag stop = nullptr;                         // Ctrl-C: abort the running pose, keep the completed ones
+  // A pose whose board lies within this share of the board's size in the image of a pose taken
+  // (mean corner distance, core::too_similar_problem) is retaken, or refused with --auto; 0: no check.
+  double min_pose_shift = core::kMinPoseShiftOfBoard;
+  StopFlag stop = nullptr;  // Ctrl-C: abort the running pose, keep the completed ones
   // Interactive mode: asked before every pose the user has to set (the instruction says what),
   // and after a pose that failed its check (`problem` non-empty: answering `ready` retakes it).
   // Unset (--auto): nothing is asked, and a pose that fails its check is an error.
