@@ -21,12 +21,14 @@
 #include <set>
 #include <sstream>
 
+#include "slproto/file_util.hpp"
 #include "slscan/io/ply.hpp"
 
 namespace slscan::session {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
+using slproto::errno_text;
 
 namespace {
 
@@ -66,8 +68,6 @@ class Sha256 {
  private:
   std::unique_ptr<EVP_MD_CTX, DigestDeleter> context_;
 };
-
-std::string errno_text(int error) { return std::strerror(error); }
 
 std::int64_t mtime_ns(const struct stat& info) {
   return static_cast<std::int64_t>(info.st_mtim.tv_sec) * 1'000'000'000 + info.st_mtim.tv_nsec;
