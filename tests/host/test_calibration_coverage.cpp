@@ -1,6 +1,7 @@
 // The guided capture's pose checks from the board's corners alone (core/calibration_coverage):
 // a pose set again or a table that did not turn is too similar to one taken, the pose set's
-// own poses are not; the coverage figures (image cells, depth range) for known boards.
+// own poses are not; the coverage figures (image cells, depth range) for known boards; and the
+// checks before it (core::check_calibration_pose): a board not found, a board half lit.
 // The guide's poses are the small virtual rig's (slrig::calibration_poses), their corners
 // projected through the rig's true camera: no rendering.
 #include <gtest/gtest.h>
@@ -14,6 +15,7 @@
 #include "slrig/calibration_poses.hpp"
 #include "slrig/rig.hpp"
 #include "slscan/core/calibration_coverage.hpp"
+#include "slscan/core/calibration_rig.hpp"
 
 namespace slscan::core {
 namespace {
@@ -181,6 +183,50 @@ TEST(CalibrationCoverage, TheGuidesCoverageAndDepthsAgreeWithTheRig) {
   // The guide's boards (a 135 x 105 mm board at 430-490 mm on the small rig) cover 10 of the
   // 48 cells: the middle of the image, where the scanned objects are.
   EXPECT_EQ(previous, 10);
+}
+
+}  // namespace
+}  // namespace slscan::core
+
+namespace slscan::core {
+namespace {
+
+// The pose checks before the similarity check (core::check_calibration_pose): no board in the
+// frames, and a board one projector lights only partly, each said with its figures.
+TEST(CalibrationPoseCheck, ABoardNotFoundAndABoardHalfLitAreSaid) {
+  CalibrationCapture capture;
+  capture.target = {9, 7, 15, 3};
+  capture.poses.push_back({"free 0", false, 0});
+  for (const slproto::ProjectorSide side : {slproto::ProjectorSide::left, slproto::ProjectorSide::right})
+    for (const slproto::CodingAxis axis : {slproto::CodingAxis::columns, slproto::CodingAxis::rows})
+      for (std::size_t i = 0; i < capture.plan(axis).size(); ++i) {
+        CalibrationFrame frame;
+        frame.side = side;
+        frame.axis = axis;
+        frame.pattern_index = i;
+        frame.image = cv::Mat(96, 128, CV_8UC1, cv::Scalar(40));  // a grey wall, no board
+        capture.frames.push_back(frame);
+      }
+  const CalibrationPoseCheck check = check_calibration_pose(capture, 0);
+  EXPECT_FALSE(check.board_found);
+  EXPECT_EQ(check.corners, 48);
+  EXPECT_EQ(check.width, 128);
+  EXPECT_TRUE(check.camera_corners.corners.empty());
+  EXPECT_EQ(check.problem(), "the board was not found (" + check.reason + ")");
+  EXPECT_FALSE(check.reason.empty());
+  EXPECT_THROW(check_calibration_pose(capture, 1), std::invalid_argument);
+
+  CalibrationPoseCheck half_lit;
+  half_lit.board_found = true;
+  half_lit.corners = 48;
+  half_lit.lit_corners = {48, 20};
+  EXPECT_EQ(half_lit.problem(),
+            "the right projector lights 20 of its 48 corners (75 % wanted: turn the board toward it or move it into "
+            "its light)");
+  half_lit.lit_corners = {36, 36};  // exactly 75 %
+  EXPECT_EQ(half_lit.problem(), "");
+  EXPECT_NE(half_lit.problem(0.8).find("the left projector lights 36 of its 48 corners (80 % wanted"),
+            std::string::npos);
 }
 
 }  // namespace
