@@ -6,7 +6,8 @@
 // tests/host/test_calibration_rig.cpp, which calibrates the virtual rig's rendered capture), the
 // folder recalibrating to the identical file, a capture cut by slscand dying: a clear
 // message, the completed poses kept, and --resume finishing the capture; the user quitting
-// (poses kept, coverage shown per pose) and a pose taken again refused as too similar.
+// (poses kept, coverage shown per pose), a pose taken again refused as too similar, and Ctrl-C
+// during a pose.
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -80,6 +81,9 @@ class Child {
     }
     pid_ = -1;
     return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  }
+  void signal(int number) {
+    if (pid_ > 0) ::kill(pid_, number);
   }
   void kill() {
     if (pid_ <= 0) return;
@@ -323,6 +327,33 @@ TEST_F(CalibrateConnect, QuitKeepsThePosesAndAPoseTakenAgainIsRefused) {
   EXPECT_NE(refused.find("free 1: too similar to 'free 0'"), std::string::npos) << refused;
   EXPECT_NE(refused.find("the 1 complete pose is in " + folder.string()), std::string::npos) << refused;
   EXPECT_EQ(poses_in(folder), 1u);
+  EXPECT_FALSE(fs::exists(dir_ / "calib.json"));
+}
+
+// Ctrl-C during a pose: slscan aborts the scan on the board, says which pose was cut and where
+// the complete ones are, exit 130; the folder holds only complete poses.
+TEST_F(CalibrateConnect, CtrlCDuringAPoseKeepsTheCompleteOnes) {
+  const fs::path folder = dir_ / "capture";
+  Slscand daemon(dir_ / "slscand");
+  Child calibrate(
+      {SLSCAN_BIN, "calibrate", "--connect", daemon.address(), "--auto", "--exposure-us", "2000", "--period-us", "5000",
+       "--settle-ms", "50", "--write-capture", folder.string(), "--out", (dir_ / "calib.json").string()},
+      dir_ / "interrupted");
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(900);
+  while (poses_in(folder) < 1) {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "no pose written: " << calibrate.err();
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  calibrate.signal(SIGINT);
+  EXPECT_EQ(calibrate.wait(std::chrono::seconds(120)), 130) << calibrate.err();
+  const std::string err = calibrate.err();
+  std::printf("after Ctrl-C: %s", err.substr(err.rfind("warning:")).c_str());
+  EXPECT_NE(err.find("interrupted during free "), std::string::npos) << err;
+  EXPECT_NE(err.find("complete pose"), std::string::npos) << err;
+  EXPECT_NE(err.find("(--resume " + folder.string() + " continues)"), std::string::npos) << err;
+  const std::size_t kept = poses_in(folder);
+  EXPECT_GE(kept, 1u);
+  EXPECT_LT(kept, 20u);
   EXPECT_FALSE(fs::exists(dir_ / "calib.json"));
 }
 
