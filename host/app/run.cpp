@@ -284,7 +284,7 @@ int run_reprocess(const ReprocessRequest& request, const Console& console) {
     replayed =
         session::reprocess_capture(request.capture_path, calibration, options, ConsoleLog(console), &interrupted);
   } catch (const core::ReconstructionInterrupted& e) {
-    console.warn("interrupted (Ctrl-C) before the reconstruction's " + e.stage() + " stage: nothing was written to " +
+    console.warn("interrupted (Ctrl-C) in the reconstruction's " + e.stage() + " stage: nothing was written to " +
                  request.output_dir);
     return exit_interrupted;
   } catch (const core::ReconstructionOutOfMemory& e) {
@@ -376,9 +376,8 @@ int run_scan(const ScanCommand& command, const Console& console) {
     scan = session::run_live_scan(request, calibration, options, ConsoleLog(console));
   } catch (const core::ReconstructionInterrupted& e) {
     // After the last frame: the capture is complete, only the model is not built.
-    console.warn("interrupted (Ctrl-C) before the reconstruction's " + e.stage() +
-                 " stage: the complete capture is in " + request.capture_path +
-                 " (no model written); slscan reprocess reconstructs it");
+    console.warn("interrupted (Ctrl-C) in the reconstruction's " + e.stage() + " stage: the complete capture is in " +
+                 request.capture_path + " (no model written); slscan reprocess reconstructs it");
     return exit_interrupted;
   } catch (const core::ReconstructionOutOfMemory& e) {
     throw ResourceError("scan: out of memory in the reconstruction's " + e.stage() + " stage (" + memory_situation() +
@@ -390,6 +389,17 @@ int run_scan(const ScanCommand& command, const Console& console) {
                  std::to_string(scan.frames_expected) + " planned) in " + request.capture_path +
                  "; slscan reprocess reconstructs them");
     return exit_interrupted;
+  }
+  if (scan.out_of_memory_stage) {
+    // While frames arrived: the reconstruction was given up; what was received is recorded.
+    const bool complete = scan.done.has_value() && scan.frames == scan.frames_expected;
+    throw ResourceError("scan: out of memory in the reconstruction's " + *scan.out_of_memory_stage + " stage (" +
+                        memory_situation() + "); " +
+                        (complete ? "the complete capture (" + std::to_string(scan.frames) + " frames) is in "
+                                  : "kept all " + std::to_string(scan.frames) + " frames received (of " +
+                                        std::to_string(scan.frames_expected) + " planned) in ") +
+                        request.capture_path +
+                        " (no model written): slscan reprocess with more memory reconstructs it");
   }
   const core::ScanResult& result = *scan.reconstruction;
   check_not_empty(result, request.capture_path, " (the capture is kept)");
@@ -422,7 +432,14 @@ int run_scan(const ScanCommand& command, const Console& console) {
       console.warn(std::string("ball bar not measured: ") + e.what());
     }
   }
-  const OutputFiles files = write_scan_outputs(command.output_dir, result, report, options.mesh_formats);
+  OutputFiles files;
+  try {
+    files = write_scan_outputs(command.output_dir, result, report, options.mesh_formats);
+  } catch (const std::bad_alloc&) {
+    throw ResourceError("scan: out of memory writing the outputs (" + memory_situation() +
+                        "); the complete capture is in " + request.capture_path +
+                        " (no model written): slscan reprocess with more memory reconstructs it");
+  }
   print_summary(console, result, files, seconds_since(start));
   return report_self_checks(console, result);
 }

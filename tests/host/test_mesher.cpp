@@ -5,6 +5,7 @@
 #include <tbb/global_control.h>
 
 #include <Eigen/Geometry>
+#include <atomic>
 #include <cmath>
 #include <numbers>
 #include <random>
@@ -118,6 +119,30 @@ TEST(Mesher, SameMeshOnOneAndTwoThreads) {
   for (std::size_t i = 0; i < one.mesh.vertices.size(); ++i) {
     ASSERT_EQ(one.mesh.vertices[i], two.mesh.vertices[i]) << "vertex " << i;
     ASSERT_EQ(one.mesh.normals[i], two.mesh.normals[i]) << "vertex " << i;
+  }
+}
+
+// Ctrl-C inside the mesh stage (issue 17): the interrupt is called per block of points, voxel
+// leaves and vertices (not only between the steps), from the worker threads too, and what it
+// throws ends build_mesh; one that returns changes nothing.
+TEST(Mesher, InterruptIsCheckedPerBlockAndWhatItThrowsEndsTheMesh) {
+  const auto cloud = sphere(20000, 0.010f, -2, 2, 1);
+  std::atomic<int> calls{0};
+  const auto counted = slscan::mesh::build_mesh(cloud, {}, [&] { ++calls; });
+  const int per_run = calls.load();
+  EXPECT_GT(per_run, 20) << "checked only between the steps";
+  const auto plain = slscan::mesh::build_mesh(cloud, {});
+  EXPECT_EQ(counted.mesh.triangles, plain.mesh.triangles);
+
+  struct Stop {};
+  for (const int after : {1, per_run / 2}) {  // the chunking varies a little run to run
+    calls = 0;
+    EXPECT_THROW(slscan::mesh::build_mesh(cloud, {},
+                                          [&] {
+                                            if (++calls > after) throw Stop{};
+                                          }),
+                 Stop)
+        << "after " << after << " of " << per_run << " calls";
   }
 }
 

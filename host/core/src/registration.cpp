@@ -64,7 +64,7 @@ class JointIcp {
  public:
   JointIcp(std::vector<ViewData>& views, std::vector<Eigen::Isometry3d>& poses, std::vector<bool> fixed,
            std::vector<std::pair<int, int>> directed_pairs, const IcpOptions& options, double prior_deg = 0,
-           double prior_mm = 0)
+           double prior_mm = 0, const InterruptionPoint* interrupt = nullptr)
       : views_(views),
         poses_(poses),
         prior_poses_(poses),
@@ -72,7 +72,8 @@ class JointIcp {
         pairs_(std::move(directed_pairs)),
         options_(options),
         prior_rad_(prior_deg / kDegPerRad),
-        prior_mm_(prior_mm) {}
+        prior_mm_(prior_mm),
+        interrupt_(interrupt) {}
 
   int run() {
     int iterations = 0;
@@ -96,6 +97,7 @@ class JointIcp {
       // remaining iteration there without improving the fit.
       double previous_rms = std::numeric_limits<double>::infinity();
       for (int it = 0; it < options_.max_iterations_per_stage; ++it) {
+        if (interrupt_ != nullptr) interruption_point(*interrupt_);
         ++iterations;
         double rms = 0;
         if (step(options_.gates_mm[stage], sources, tolerance_deg, tolerance_mm, rms)) break;
@@ -265,6 +267,7 @@ class JointIcp {
   std::vector<std::pair<int, int>> pairs_;
   const IcpOptions& options_;
   double prior_rad_ = 0, prior_mm_ = 0;
+  const InterruptionPoint* interrupt_ = nullptr;  // per iteration (Ctrl-C)
 };
 
 // Spreads the low 21 bits of x to every third bit (for a 63-bit Morton code).
@@ -365,7 +368,8 @@ IcpResult icp_point_to_plane(const PointCloud& source, const PointCloud& target,
 }
 
 RegistrationResult register_views(const std::vector<PointCloud>& views, const std::vector<double>& angles_deg,
-                                  const slproto::TurntableCalibration& turntable, const RegistrationOptions& options) {
+                                  const slproto::TurntableCalibration& turntable, const RegistrationOptions& options,
+                                  const InterruptionPoint& interrupt) {
   check_options(options.icp);
   if (views.size() != angles_deg.size())
     throw std::invalid_argument("register_views: " + std::to_string(views.size()) + " views but " +
@@ -407,7 +411,8 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
       }
       std::vector<bool> fixed(views.size(), false);
       fixed[0] = true;
-      JointIcp icp(data, poses, fixed, directed, options.icp, options.turntable_prior_deg, options.turntable_prior_mm);
+      JointIcp icp(data, poses, fixed, directed, options.icp, options.turntable_prior_deg, options.turntable_prior_mm,
+                   &interrupt);
       result.iterations = icp.run();
     } else {
       // Chain: register view i onto view i-1 (as placed so far), starting from their coarse
@@ -420,7 +425,7 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
                                       options.icp.seed + static_cast<std::uint64_t>(i) - 1));
         pair_data.push_back(make_view(views[static_cast<std::size_t>(i)], options.icp.source_points_per_view,
                                       options.icp.seed + static_cast<std::uint64_t>(i)));
-        JointIcp icp(pair_data, pair_poses, {true, false}, {{1, 0}, {0, 1}}, options.icp);
+        JointIcp icp(pair_data, pair_poses, {true, false}, {{1, 0}, {0, 1}}, options.icp, 0, 0, &interrupt);
         result.iterations += icp.run();
         const Eigen::Isometry3d prev_from_this = pair_poses[0].inverse() * pair_poses[1];
         poses[static_cast<std::size_t>(i)] = poses[static_cast<std::size_t>(i - 1)] * prev_from_this;

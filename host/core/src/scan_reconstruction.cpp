@@ -12,6 +12,7 @@
 #include <exception>
 #include <functional>
 #include <mutex>
+#include <new>
 #include <optional>
 #include <stdexcept>
 #include <utility>
@@ -178,6 +179,9 @@ struct ScanReconstructor::Impl {
   std::deque<Job> queued;        // complete projector-views not started yet, oldest first
   int jobs_running = 0;          // jobs some thread is executing right now
   std::exception_ptr job_error;  // the first job that threw; finish() rethrows it
+  // Set by finish(): Ctrl-C while the last projector-views wait for a thread (one CPU) ends
+  // each job before it decodes (ReconstructionInterrupted, rethrown by finish()).
+  std::atomic<const std::atomic<bool>*> stop{nullptr};
   std::map<int, ViewState> views;
   std::size_t completed = 0;
   std::vector<int> incomplete;
@@ -254,6 +258,8 @@ struct ScanReconstructor::Impl {
       std::unique_ptr<ProjectorViewDecoder>* decoder;
       ~Release() { self->release_decoder(std::move(*decoder)); }
     } release{this, &decoder};
+    if (const std::atomic<bool>* flag = stop.load(); flag != nullptr && flag->load())
+      throw ReconstructionInterrupted("wait_for_views");
     ProjectorViewReport report;
     report.present = true;
     auto start = Clock::now();
@@ -465,6 +471,18 @@ void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::by
                                 std::to_string(s.width) + " x " + std::to_string(s.height) + " frame");
 
   std::unique_lock lock(s.mutex);
+  // A job that ran out of memory on a worker thread is said at the next frame, while frames still
+  // arrive (a live scan then stops reconstructing and records the rest), not only in finish().
+  // Other job errors wait for finish(), which names them.
+  if (s.job_error) {
+    try {
+      std::rethrow_exception(s.job_error);
+    } catch (const std::bad_alloc&) {
+      s.job_error = nullptr;
+      throw;
+    } catch (...) {  // NOLINT(bugprone-empty-catch): kept in job_error for finish()
+    }
+  }
   auto [view_it, inserted] = s.views.try_emplace(info.view_index);
   Impl::ViewState& view = view_it->second;
   if (inserted) {
@@ -514,24 +532,31 @@ std::vector<int> ScanReconstructor::incomplete_views() const {
 }
 
 ScanResult ScanReconstructor::finish(const std::atomic<bool>* stop) {
-  // The stage running, for an out-of-memory report; each boundary is where a stop is honoured.
+  // The stage running, for an out-of-memory report. A stop is honoured at each boundary and
+  // inside the long stages (per projector-view, view, ICP iteration), through `interrupt`; the
+  // stage is only changed on this thread, between stages, so the workers read it unchanged.
   const char* stage = "wait_for_views";
+  const InterruptionPoint interrupt = [&stage, stop] {
+    if (stop != nullptr && stop->load()) throw ReconstructionInterrupted(stage);
+  };
   auto begin_stage = [&](const char* next) {
     stage = next;
-    if (stop != nullptr && stop->load()) throw ReconstructionInterrupted(next);
+    interrupt();
   };
   try {
-    return final_stages(begin_stage);
+    return final_stages(begin_stage, interrupt, stop);
   } catch (const std::bad_alloc&) {
     throw ReconstructionOutOfMemory(stage);
   }
 }
 
-ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)>& begin_stage) {
+ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)>& begin_stage,
+                                           const InterruptionPoint& interrupt, const std::atomic<bool>* stop) {
   Impl& s = *impl_;
   begin_stage("wait_for_views");
   auto start = Clock::now();
-  s.workers.wait();  // runs every queued job (on this thread too)
+  s.stop.store(stop);  // the queued projector-views' jobs check it before they decode
+  s.workers.wait();    // runs every queued job (on this thread too)
   {
     std::unique_lock lock(s.mutex);
     while (!s.queued.empty()) s.run_first_queued(lock);  // none left by the tasks; kept as the invariant
@@ -561,7 +586,10 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
       s.incomplete.push_back(index);
     }
   }
-  for (int index : to_fuse) s.fuse_view(index);
+  for (int index : to_fuse) {
+    interrupt();
+    s.fuse_view(index);
+  }
   result.stage_ms["fuse_remaining"] = ms_since(start);
 
   std::vector<PointCloud> clouds;
@@ -582,7 +610,7 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
     table_from_view[i] = coarse_table_from_view(s.calibration.turntable, angles[i]);
   if (s.options.register_views && clouds.size() >= 2) {
     try {
-      result.registration = register_views(clouds, angles, s.calibration.turntable, s.options.registration);
+      result.registration = register_views(clouds, angles, s.calibration.turntable, s.options.registration, interrupt);
       for (std::size_t i = 0; i < clouds.size(); ++i) table_from_view[i] = result.registration.views[i].table_from_view;
       result.registered = true;
     } catch (const std::runtime_error& e) {
@@ -599,6 +627,7 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
     const OverlapSelection selection =
         select_best_views(clouds, grids, table_from_view, s.calibration.camera, s.options.overlap);
     result.overlap = selection.counts;
+    interrupt();
     tbb::parallel_for(std::size_t{0}, clouds.size(), [&](std::size_t i) {
       std::vector<std::size_t> kept;
       kept.reserve(clouds[i].size());
@@ -613,6 +642,7 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
   start = Clock::now();
   PointCloud merged;
   for (std::size_t i = 0; i < clouds.size(); ++i) {
+    interrupt();
     merged.append(transform_cloud(clouds[i], table_from_view[i]));
     result.outliers_removed += result.views[i].outliers_removed;
   }

@@ -294,7 +294,8 @@ void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::s
 
 }  // namespace
 
-core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options) {
+core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options,
+                            const core::InterruptionPoint& interrupt) {
   const auto start = std::chrono::steady_clock::now();
   options.check();
   check_cloud(cloud);
@@ -320,6 +321,7 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
     std::vector<std::uint8_t> keep(cloud.size(), 0);
     const auto need = static_cast<std::size_t>(options.min_neighbors) + 1;  // the point itself counts
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cloud.size(), 1024), [&](const auto& r) {
+      core::interruption_point(interrupt);
       for (std::size_t i = r.begin(); i < r.end(); ++i) {
         Tree::Count count(radius2, need);
         all->search(count, cloud.points[i]);
@@ -340,8 +342,10 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
     throw std::invalid_argument("mesh: only " + std::to_string(points.size()) + " of " + std::to_string(cloud.size()) +
                                 " points have " + std::to_string(options.min_neighbors) + " neighbours within " +
                                 std::to_string(3 * sigma) + " mm: no surface");
+  core::interruption_point(interrupt);
   const Implicit implicit(points, normals, sigma);
   result.cell_mm = cell;
+  core::interruption_point(interrupt);
 
   // 2. A sparse grid around the points: the fit evaluated in a narrow band (the voxels within 2
   // of a point's voxel, which holds every edge the surface crosses near the points), the other
@@ -367,6 +371,7 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
     stats.leaves = leaves.size();
     stats.voxels = leaves.size() * openvdb::FloatTree::LeafNodeType::SIZE;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, leaves.size(), 4), [&](const auto& r) {
+      core::interruption_point(interrupt);
       for (std::size_t l = r.begin(); l < r.end(); ++l) {
         auto& leaf = *leaves[l];
         for (auto it = leaf.beginValueOn(); it; ++it) {
@@ -381,7 +386,9 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
       }
     });
   }
+  core::interruption_point(interrupt);
   openvdb::tools::signedFloodFill(grid->tree());
+  core::interruption_point(interrupt);
 
   // 3. The level set's zero surface.
   std::vector<openvdb::Vec3s> vdb_points;
@@ -389,8 +396,10 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   std::vector<openvdb::Vec4I> vdb_quads;
   openvdb::tools::volumeToMesh(*grid, vdb_points, vdb_triangles, vdb_quads, 0.0, options.adaptivity, true);
   // A vertex lies in its cell (the voxels ijk .. ijk + 1): in the band when its 8 corners are.
+  core::interruption_point(interrupt);
   std::vector<std::uint8_t> in_band(vdb_points.size(), 0);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, vdb_points.size(), 1024), [&](const auto& r) {
+    core::interruption_point(interrupt);
     auto acc = grid->getConstAccessor();
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       const openvdb::Vec3d x = xform.worldToIndex(openvdb::Vec3d(vdb_points[i]));
@@ -432,6 +441,7 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   std::vector<Eigen::Vector3f> point_normal(vertices.size(), Eigen::Vector3f::Zero());
   const auto trim_gate = static_cast<float>(options.trim_factor * scale);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, vertices.size(), 256), [&](const auto& r) {
+    core::interruption_point(interrupt);
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       const Eigen::Vector3d x0 = vertices[i].cast<double>();
       Eigen::Vector3d x = x0;
@@ -454,6 +464,7 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   // a few points on one side, curls back (a fold within the trim distance that crosses the
   // surface: the full-resolution sphere's 38 self-intersecting pairs). Watertight keeps the
   // cut and closes the holes it leaves (close_holes), with patches of its own.
+  core::interruption_point(interrupt);
   const std::size_t level_set_triangles = triangles.size();
   std::vector<std::array<std::uint32_t, 3>> kept;
   kept.reserve(triangles.size());
@@ -506,7 +517,9 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
     if (piece_size[root(t[0])] >= min_size) mesh.triangles.push_back({remap[t[0]], remap[t[1]], remap[t[2]]});
   mesh.filled.assign(mesh.triangles.size(), 0);
 
-  if (options.mode == core::MeshMode::watertight && !mesh.triangles.empty()) close_holes(mesh, options, stats);
+  core::interruption_point(interrupt);
+  if (options.mode == core::MeshMode::watertight && !mesh.triangles.empty())
+    close_holes(mesh, options, stats, interrupt);
   if (mesh.triangles.empty())
     throw std::invalid_argument("mesh: no surface left after trimming (" + std::to_string(points.size()) +
                                 " points, cell " + std::to_string(cell) + " mm)");

@@ -81,7 +81,8 @@ void remove_patches(Surface& sm, const Surface::Property_map<FaceIndex, int>& pa
 
 }  // namespace
 
-void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats) {
+void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
+                 const core::InterruptionPoint& interrupt) {
   std::size_t rejected = 0;
   Surface sm = to_surface(mesh, rejected);
   stats.rejected_triangles = rejected;
@@ -98,6 +99,7 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   const auto cycles = border_cycles(sm);
   stats.holes = cycles.size();
   for (const HalfedgeIndex h : cycles) {
+    core::interruption_point(interrupt);
     std::vector<FaceIndex> faces;
     std::vector<VertexIndex> added;
     const bool small = options.fill_holes_mm > 0 && cycle_diameter(sm, h) <= options.fill_holes_mm;
@@ -118,6 +120,7 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   // if they still intersect (the hole stays open).
   std::size_t pairs = 0;
   for (int attempt = 0; attempt < 2; ++attempt) {
+    core::interruption_point(interrupt);
     std::set<int> bad = intersecting_patches(sm, patch, pairs);
     bad.erase(-1);
     if (bad.empty()) break;

@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <new>
 
 #include "slproto/capture.hpp"
 #include "slproto/framing.hpp"
@@ -86,77 +87,95 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
     (void)connection.send(abort);
   };
   auto last_frame_at = Clock::now();
-  while (!out.done && !failure) {
-    if (command.stop != nullptr && command.stop->load() && !abort_sent) {
-      slproto::pb::Abort abort;
-      abort.set_scan_id(request.scan_id());
-      abort.set_reason("interrupted on the host (Ctrl-C)");
-      (void)connection.send(abort);
-      abort_sent = true;
-      abort_deadline = Clock::now() + kAbortGrace;
-      log.end_progress();
-      log.warn("interrupted: asking the scanner to stop (" + std::to_string(frames) + " frames received so far)");
-    }
-    if (abort_sent && Clock::now() > abort_deadline) {
-      log.warn("the scanner did not confirm the stop within " + std::to_string(kAbortGrace.count()) +
-               " s; closing the connection");
-      break;
-    }
-    auto message = connection.receive(std::chrono::milliseconds(200));
-    if (!message) {
-      if (message.error().code == slproto::Errc::timeout) {
-        // A board that keeps the connection alive (heartbeats) but sends no frame is stuck.
-        const auto silent = Clock::now() - last_frame_at;
-        if (!abort_sent && silent >= command.stall_timeout) {
-          failure = "the scanner sent no frame for " +
-                    std::to_string(std::chrono::duration_cast<std::chrono::seconds>(silent).count()) + " s after " +
-                    std::to_string(frames) + " of " + std::to_string(expected) + " frames (--stall-timeout-s " +
-                    std::to_string(command.stall_timeout.count() / 1000) + ")";
-          abort_scan("the host timed out waiting for frames");
-        }
-        continue;
+  // Out of memory: in the reconstruction (decoding), the reconstruction is given up and its memory
+  // freed, and the rest of the scan is still recorded, so the capture is complete; in receiving
+  // or recording, the scanner is stopped and the capture keeps every complete frame before.
+  auto run_out_of_memory = [&](const std::string& stage) {
+    out.out_of_memory_stage = stage;
+    stream.abandon();
+    log.end_progress();
+  };
+  try {
+    while (!out.done && !failure) {
+      if (command.stop != nullptr && command.stop->load() && !abort_sent) {
+        slproto::pb::Abort abort;
+        abort.set_scan_id(request.scan_id());
+        abort.set_reason("interrupted on the host (Ctrl-C)");
+        (void)connection.send(abort);
+        abort_sent = true;
+        abort_deadline = Clock::now() + kAbortGrace;
+        log.end_progress();
+        log.warn("interrupted: asking the scanner to stop (" + std::to_string(frames) + " frames received so far)");
       }
-      failure = "connection to the scanner: " + message.error().message;
-      break;
-    }
-    if (const auto* header = message->get<slproto::pb::FrameHeader>()) {
-      if (auto problem = slots.take(*header, message->payload.size(), message->stream_offset)) {
-        failure = "the scanner sent frame " + std::to_string(frames) + " (stream offset " +
-                  std::to_string(message->stream_offset) + "), " + *problem + "; it was not recorded";
-        abort_scan("the host refused a frame: " + *problem);
+      if (abort_sent && Clock::now() > abort_deadline) {
+        log.warn("the scanner did not confirm the stop within " + std::to_string(kAbortGrace.count()) +
+                 " s; closing the connection");
         break;
       }
-      // Interrupted: the frames still coming are only recorded (the model is not built), so
-      // the scan ends as soon as the board stops sending.
-      if (!abort_sent) {
-        try {
-          stream.add(*header, message->payload);
-        } catch (const std::exception& e) {
+      auto message = connection.receive(std::chrono::milliseconds(200));
+      if (!message) {
+        if (message.error().code == slproto::Errc::timeout) {
+          // A board that keeps the connection alive (heartbeats) but sends no frame is stuck.
+          const auto silent = Clock::now() - last_frame_at;
+          if (!abort_sent && silent >= command.stall_timeout) {
+            failure = "the scanner sent no frame for " +
+                      std::to_string(std::chrono::duration_cast<std::chrono::seconds>(silent).count()) + " s after " +
+                      std::to_string(frames) + " of " + std::to_string(expected) + " frames (--stall-timeout-s " +
+                      std::to_string(command.stall_timeout.count() / 1000) + ")";
+            abort_scan("the host timed out waiting for frames");
+          }
+          continue;
+        }
+        failure = "connection to the scanner: " + message.error().message;
+        break;
+      }
+      if (const auto* header = message->get<slproto::pb::FrameHeader>()) {
+        if (auto problem = slots.take(*header, message->payload.size(), message->stream_offset)) {
           failure = "the scanner sent frame " + std::to_string(frames) + " (stream offset " +
-                    std::to_string(message->stream_offset) + "): " + e.what();
-          abort_scan(std::string("the host refused a frame: ") + e.what());
+                    std::to_string(message->stream_offset) + "), " + *problem + "; it was not recorded";
+          abort_scan("the host refused a frame: " + *problem);
+          break;
+        }
+        // Interrupted: the frames still coming are only recorded (the model is not built), so
+        // the scan ends as soon as the board stops sending.
+        if (!abort_sent && !out.out_of_memory_stage) {
+          try {
+            stream.add(*header, message->payload);
+          } catch (const core::ReconstructionOutOfMemory& e) {
+            run_out_of_memory(e.stage());
+            log.warn("out of memory in the reconstruction's " + e.stage() + " stage after " + std::to_string(frames) +
+                     " frames: recording the rest of the scan without reconstructing it");
+          } catch (const std::exception& e) {
+            failure = "the scanner sent frame " + std::to_string(frames) + " (stream offset " +
+                      std::to_string(message->stream_offset) + "): " + e.what();
+            abort_scan(std::string("the host refused a frame: ") + e.what());
+            break;
+          }
+        }
+        last_frame_at = Clock::now();
+      }
+      if (message->type() != slproto::MessageType::heartbeat) {
+        if (auto status = capture->append(*message); !status) {
+          // Our capture could not be written (disk full, file size limit): stop the scanner,
+          // which would otherwise go on scanning into nothing.
+          failure = "recording the stream: " + status.error().message;
+          abort_scan("the host cannot record: " + failure.value());
           break;
         }
       }
-      last_frame_at = Clock::now();
-    }
-    if (message->type() != slproto::MessageType::heartbeat) {
-      if (auto status = capture->append(*message); !status) {
-        // Our capture could not be written (disk full, file size limit): stop the scanner,
-        // which would otherwise go on scanning into nothing.
-        failure = "recording the stream: " + status.error().message;
-        abort_scan("the host cannot record: " + failure.value());
-        break;
+      if (message->get<slproto::pb::FrameHeader>() != nullptr) {
+        ++frames;  // checked and recorded, reconstructed or not
+        if (!abort_sent && !out.out_of_memory_stage) log.progress("frames", frames, expected);
+      } else if (const auto* scan_done = message->get<slproto::pb::ScanDone>()) {
+        out.done = *scan_done;
+      } else if (const auto* error = message->get<slproto::pb::Error>()) {
+        failure = "the scanner reported: " + error->text();
       }
     }
-    if (message->get<slproto::pb::FrameHeader>() != nullptr) {
-      ++frames;  // checked and recorded, reconstructed or not
-      if (!abort_sent) log.progress("frames", frames, expected);
-    } else if (const auto* scan_done = message->get<slproto::pb::ScanDone>()) {
-      out.done = *scan_done;
-    } else if (const auto* error = message->get<slproto::pb::Error>()) {
-      failure = "the scanner reported: " + error->text();
-    }
+  } catch (const std::bad_alloc&) {
+    // The frame being received or recorded is lost (never half-written); the ones before are kept.
+    run_out_of_memory("receiving and recording the frames");
+    abort_scan("the host ran out of memory");
   }
   log.end_progress();
   connection.close();
@@ -174,12 +193,10 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
     throw DeviceError("the scanner's ScanDone says " + std::to_string(out.done->frames_sent()) +
                       " frames were sent, but " + std::to_string(out.frames) + " arrived (the capture of those is in " +
                       command.capture_path + ")");
-  if (abort_sent) {
-    out.aborted = true;
-    return out;
-  }
+  if (abort_sent) out.aborted = true;
+  if (abort_sent || out.out_of_memory_stage) return out;
   const auto last_frame = Clock::now();
-  out.reconstruction = stream.finish(command.stop);  // Ctrl-C now: the capture is complete
+  out.reconstruction = stream.finish(command.stop, &log);  // Ctrl-C now: the capture is complete
   out.last_frame_to_model_s = std::chrono::duration<double>(Clock::now() - last_frame).count();
   return out;
 }

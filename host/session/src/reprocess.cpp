@@ -43,7 +43,7 @@ ReprocessResult reprocess_capture(const std::string& capture_path, const slproto
   for (const auto& error : out.summary.errors) log.warn("the board reported: " + error.text());
   log.info("reconstructing " + std::to_string(out.summary.frames) + " frames");
   try {
-    out.reconstruction = stream.finish(stop);
+    out.reconstruction = stream.finish(stop, &log);
   } catch (const std::invalid_argument& e) {
     // A stage refusing its input (its message names the stage and the item): say which capture.
     throw std::invalid_argument(capture_path + ": reconstructing the capture: " + e.what());

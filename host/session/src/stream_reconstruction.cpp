@@ -24,10 +24,10 @@ void StreamReconstruction::set_plan(const slproto::PatternPlan& plan) {
 
 void StreamReconstruction::add(const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
   if (!plan_) throw io::IoError("a frame arrived before the scan request: the capture does not say its pattern plan");
-  if (!reconstructor_)
-    reconstructor_ = std::make_unique<core::ScanReconstructor>(calibration_, *plan_, static_cast<int>(header.width()),
-                                                               static_cast<int>(header.height()), options_);
   try {
+    if (!reconstructor_)
+      reconstructor_ = std::make_unique<core::ScanReconstructor>(calibration_, *plan_, static_cast<int>(header.width()),
+                                                                 static_cast<int>(header.height()), options_);
     reconstructor_->add_frame(io::frame_info(header), payload);
   } catch (const std::bad_alloc&) {
     throw core::ReconstructionOutOfMemory("decode (the frame of view " + std::to_string(header.view_index()) +
@@ -38,16 +38,20 @@ void StreamReconstruction::add(const slproto::pb::FrameHeader& header, std::span
   received_.back().clear_timing_events();
 }
 
-core::ScanResult StreamReconstruction::finish(const std::atomic<bool>* stop) {
+core::ScanResult StreamReconstruction::finish(const std::atomic<bool>* stop, const SessionLog* log) {
   if (!reconstructor_) throw io::IoError("the capture holds no frames");
   core::ScanResult result = reconstructor_->finish(stop);
-  if (stop != nullptr && stop->load()) throw core::ReconstructionInterrupted("mesh");
+  const core::InterruptionPoint interrupt = [stop] {
+    if (stop != nullptr && stop->load()) throw core::ReconstructionInterrupted("mesh");
+  };
+  interrupt();
   // The mesh step (slscan_mesh): here rather than in core, which does not link OpenVDB. A cloud
   // the mesher refuses leaves the model and the reports as they are, with the reason.
   const auto start = std::chrono::steady_clock::now();
   if (options_.build_mesh && result.model.has_normals() && result.model.size() >= 100) {
+    if (log != nullptr) log->info("meshing " + std::to_string(result.model.size()) + " points");
     try {
-      result.mesh = mesh::build_mesh(result.model, options_.mesh);
+      result.mesh = mesh::build_mesh(result.model, options_.mesh, interrupt);
       result.meshed = true;
     } catch (const std::invalid_argument& e) {
       result.mesh_error = e.what();

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "slproto/calibration.hpp"
+#include "slscan/core/interruption.hpp"
 #include "slscan/core/point_cloud.hpp"
 
 namespace slscan::core {
@@ -102,9 +103,10 @@ struct RegistrationResult {
 // `views[i]` is view i's cloud in its camera frame, with normals; `angles_deg[i]` its table
 // angle. View 0 is held at its coarse pose. Throws std::invalid_argument naming the view on bad
 // input (sizes, missing normals, non-finite points), std::runtime_error if a pair of views has
-// too little overlap to register.
+// too little overlap to register. `interrupt` is called per ICP iteration (Ctrl-C); what it
+// throws ends the registration.
 RegistrationResult register_views(const std::vector<PointCloud>& views, const std::vector<double>& angles_deg,
                                   const slproto::TurntableCalibration& turntable,
-                                  const RegistrationOptions& options = {});
+                                  const RegistrationOptions& options = {}, const InterruptionPoint& interrupt = {});
 
 }  // namespace slscan::core

@@ -154,8 +154,9 @@ struct FrameInfo {
   int bytes_per_pixel = 1;  // 1 (8-bit) or 2 (uint16)
 };
 
-// Thrown by finish() when its stop flag is set at a stage boundary (Ctrl-C after the last
-// frame). Not a std::runtime_error: stages that catch those (registration) must not swallow it.
+// Thrown by finish() when its stop flag is set (Ctrl-C after the last frame), at a stage
+// boundary or inside a stage; stage() names the stage it ended. Not a std::runtime_error: stages that catch those
+// (registration) must not swallow it.
 class ReconstructionInterrupted : public std::exception {
  public:
   explicit ReconstructionInterrupted(std::string stage) : stage_(std::move(stage)) {}
@@ -190,7 +191,8 @@ class ScanReconstructor {
 
   // One camera frame. Views and projectors may arrive in any order, but a view's frames must
   // all arrive before finish(). Throws std::invalid_argument naming what is wrong (projector id,
-  // pattern index, size, a view whose angle changed between frames).
+  // pattern index, size, a view whose angle changed between frames), and std::bad_alloc when
+  // this frame, or a projector-view's job queued earlier, ran out of memory.
   void add_frame(const FrameInfo& info, std::span<const std::byte> pixels);
 
   // Number of projector-views completed so far (decoded and triangulated or queued).
@@ -199,13 +201,15 @@ class ScanReconstructor {
   // Waits for the workers, then fuses what is left, registers, cleans and meshes. Views that
   // lack a projector's frames are reconstructed from the projector that is complete; a view
   // with no complete projector is skipped and counted in `incomplete_views`. `stop` (Ctrl-C) is
-  // checked between stages: set, finish() throws ReconstructionInterrupted naming the next stage.
+  // checked between stages and inside them (per projector-view still to decode, per view, per
+  // ICP iteration): set, finish() throws ReconstructionInterrupted naming the stage.
   // A stage that runs out of memory throws ReconstructionOutOfMemory naming it.
   ScanResult finish(const std::atomic<bool>* stop = nullptr);
   std::vector<int> incomplete_views() const;
 
  private:
-  ScanResult final_stages(const std::function<void(const char*)>& begin_stage);
+  ScanResult final_stages(const std::function<void(const char*)>& begin_stage, const InterruptionPoint& interrupt,
+                          const std::atomic<bool>* stop);
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

@@ -5,6 +5,7 @@
 // mesh on any number of threads.
 #pragma once
 
+#include "slscan/core/interruption.hpp"
 #include "slscan/core/mesh.hpp"
 #include "slscan/core/point_cloud.hpp"
 
@@ -12,11 +13,15 @@ namespace slscan::mesh {
 
 // Needs points with one finite outward normal each. Throws std::invalid_argument naming what is
 // wrong (empty cloud, missing or non-finite normal at index i, too few points with neighbours).
-core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options = {});
+// `interrupt` is called between the steps and per block of points, voxel leaves and vertices
+// (and per hole in close_holes); what it throws ends the mesh (Ctrl-C: docs/faults.md).
+core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options = {},
+                            const core::InterruptionPoint& interrupt = {});
 
 // Watertight closure of a raw mesh (consistently oriented triangles): border cycles closed with
 // CGAL, filled faces flagged in mesh.filled, self-intersecting fills undone. Updates stats.
-void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats);
+void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
+                 const core::InterruptionPoint& interrupt = {});
 
 // CGAL's checks of a mesh (for reports and tests): closed 2-manifold (every triangle accepted
 // by a half-edge mesh, no border), self-intersecting face pairs, outward orientation.

@@ -38,6 +38,10 @@ struct LiveScanResult {
   std::size_t frames = 0;                     // frames received (every one is in the capture)
   std::size_t frames_expected = 0;            // frames the scan request asks for
   std::optional<slproto::pb::ScanDone> done;  // the board's end-of-scan statistics
+  // Set: the host ran out of memory in this stage while frames arrived; `reconstruction` is
+  // empty and the capture holds every frame received (all of them when `done` is set and the
+  // scan was not aborted: decoding was given up, recording went on).
+  std::optional<std::string> out_of_memory_stage;
   std::optional<core::ScanResult> reconstruction;
   double last_frame_to_model_s = 0;
 };

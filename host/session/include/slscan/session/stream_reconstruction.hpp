@@ -12,6 +12,7 @@
 #include "slproto/messages.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
+#include "slscan/session/session_log.hpp"
 
 namespace slscan::session {
 
@@ -21,11 +22,17 @@ class StreamReconstruction {
 
   // Throws io::IoError naming every field where `plan` differs from the calibration's.
   void set_plan(const slproto::PatternPlan& plan);
-  // A std::bad_alloc while decoding becomes core::ReconstructionOutOfMemory naming the frame.
+  // A std::bad_alloc while decoding (this frame's, or an earlier frame's job that ran out on a
+  // worker thread) becomes core::ReconstructionOutOfMemory naming the frame.
   void add(const slproto::pb::FrameHeader& header, std::span<const std::byte> payload);
-  // The final stages and the mesh; `stop` (Ctrl-C) is checked between them
-  // (core::ReconstructionInterrupted), a stage out of memory is core::ReconstructionOutOfMemory.
-  core::ScanResult finish(const std::atomic<bool>* stop = nullptr);
+  // Gives up the reconstruction and frees its memory (out of memory while frames still arrive:
+  // the rest of the scan is only recorded). add() and finish() must not be called after it.
+  void abandon() { reconstructor_.reset(); }
+  // The final stages and the mesh; `stop` (Ctrl-C) is checked between them and inside them (per
+  // view, ICP iteration, block of the mesh: core::ReconstructionInterrupted naming the stage), a
+  // stage out of memory is core::ReconstructionOutOfMemory. `log` (if any) is told when the mesh
+  // stage begins.
+  core::ScanResult finish(const std::atomic<bool>* stop = nullptr, const SessionLog* log = nullptr);
   // The headers of the frames added so far (timing events dropped), for what is missing.
   const std::vector<slproto::pb::FrameHeader>& received() const { return received_; }
 
