@@ -191,6 +191,8 @@ static int run_command_line(int argc, char** argv) {
   reprocess_cmd->add_option("--config", reprocess.config_path, "Reconstruction parameters (JSON)")
       ->check(existing(false));
   add_mesh_options(*reprocess_cmd, reprocess.mesh);
+  reprocess_cmd->add_option("--part-id", reprocess.part_id, "Part identifier, for the reports");
+  reprocess_cmd->add_option("--operator", reprocess.operator_name, "Operator, for the reports");
 
   ScanCommand scan;
   std::string connect = "127.0.0.1:7878";
@@ -217,6 +219,8 @@ static int run_command_line(int argc, char** argv) {
   scan_cmd->add_flag("--measure-ballbar", scan.measure_ball_bar,
                      "Fit the ball bar in the model and put its figures in the reports");
   add_mesh_options(*scan_cmd, scan.mesh);
+  scan_cmd->add_option("--part-id", scan.part_id, "Part identifier, for the reports");
+  scan_cmd->add_option("--operator", scan.operator_name, "Operator, for the reports");
 
   ConvertCommand convert;
   auto* convert_cmd = app.add_subcommand(

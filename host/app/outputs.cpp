@@ -412,10 +412,12 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
       io::write_3mf(files.mesh_3mf, mesh, "slscan mesh (" + mode + ")");
     }
   }
+  std::vector<std::string> view_files;
   for (std::size_t i = 0; i < result.view_products.size(); ++i) {
     const auto& products = result.view_products[i];
     const std::string name = "view_" + std::to_string(result.views[i].view_index);
-    io::write_ply((fs::path(dir) / "views" / (name + ".ply")).string(), products.points,
+    view_files.push_back("views/" + name + ".ply");
+    io::write_ply((fs::path(dir) / view_files.back()).string(), products.points,
                   {.binary = true, .comments = {"slscan view cloud, camera frame of this view, mm"}});
     const auto picture = [&](const std::string& suffix, const cv::Mat& image) {
       const std::string path = (fs::path(dir) / "pictures" / (name + "_" + suffix + ".png")).string();
@@ -441,9 +443,22 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
                                   std::pair{"mesh_obj", &files.mesh_obj}, std::pair{"mesh_3mf", &files.mesh_3mf}})
     if (!path->empty()) outputs[key] = fs::path(*path).filename().string();
   outputs["report_html"] = "report.html";
-  report["outputs"] = outputs;
   std::vector<std::string> relative_pictures;
   for (const auto& path : files.pictures) relative_pictures.push_back(fs::relative(path, dir).generic_string());
+  // Every file of the folder that belongs to this run, relative to it (report.html links each):
+  // the capture when it is there, the model, meshes, view clouds, pictures and the reports.
+  json listed = json::array();
+  if (const json* capture = report.contains("capture") ? &report["capture"] : nullptr;
+      capture != nullptr && capture->contains("in_folder"))
+    listed.push_back((*capture)["in_folder"]);
+  for (const std::string* file : {&files.model_ply, &files.mesh_ply, &files.mesh_stl, &files.mesh_obj, &files.mesh_3mf})
+    if (!file->empty()) listed.push_back(fs::path(*file).filename().string());
+  for (const std::string& file : view_files) listed.push_back(file);
+  for (const std::string& file : relative_pictures) listed.push_back(file);
+  listed.push_back("report.json");
+  listed.push_back("report.html");
+  report["outputs"] = outputs;
+  report["files"] = listed;
   files.report_html = (fs::path(dir) / "report.html").string();
   io::write_file_atomically(files.report_html,
                             render_report_html(report, result.model, relative_pictures,

@@ -329,15 +329,36 @@ std::string pictures_section(const std::vector<std::string>& pictures) {
 }
 
 std::string provenance_section(const json& report) {
+  const auto dash_if_empty = [](const json& value) {
+    return value.is_string() && value.get<std::string>().empty() ? std::string("&ndash;") : cell(value);
+  };
   std::vector<std::pair<std::string, std::string>> rows{
+      {"run", cell(at(report, {"run", "command"})) + ", started " + cell(at(report, {"run", "started_utc"}))},
+      {"part id", dash_if_empty(at(report, {"run", "part_id"}))},
+      {"operator", dash_if_empty(at(report, {"run", "operator"}))},
       {"slscan", cell(at(report, {"software", "slscan"}))},
       {"protocol", cell(at(report, {"software", "protocol_version"}))},
       {"calibration", cell(at(report, {"calibration", "file"})) + " (" + cell(at(report, {"calibration", "source"})) +
                           ", " + cell(at(report, {"calibration", "created_by"})) + ")"},
-      {"camera reprojection RMS", cell(at(report, {"calibration", "camera_reprojection_rms_px"}), 4) + " px"}};
+      {"calibration SHA-256", "<code>" + cell(at(report, {"calibration", "sha256"})) + "</code>"},
+      {"calibration file written", cell(at(report, {"calibration", "file_utc"})) + " (" +
+                                       cell(at(report, {"calibration", "age_days"}), 1) + " days before the run)"},
+      {"camera reprojection RMS", cell(at(report, {"calibration", "camera_reprojection_rms_px"}), 4) + " px"},
+      {"capture SHA-256", "<code>" + cell(at(report, {"capture", "sha256"})) + "</code>"},
+      {"capture file written", cell(at(report, {"capture", "file_utc"}))}};
   return "<section id=\"provenance\"><h2>Provenance</h2>\n" + key_value_table(rows) +
          "<details><summary>Reconstruction parameters</summary><pre>" + escape(at(report, {"parameters"}).dump(2)) +
          "</pre></details>\n</section>\n";
+}
+
+// A link to every file of the run in the folder (report.json "files").
+std::string files_section(const json& report) {
+  const json& files = at(report, {"files"});
+  if (!files.is_array() || files.empty()) return "";
+  std::string html = "<section id=\"files\"><h2>Files</h2>\n<ul class=\"files\">";
+  for (const json& file : files)
+    if (file.is_string()) html += "<li><a href=\"" + cell(file) + "\">" + cell(file) + "</a></li>";
+  return html + "</ul>\n</section>\n";
 }
 
 constexpr std::string_view style = R"(
@@ -470,7 +491,7 @@ std::string render_report_html(const json& report, const core::PointCloud& model
   html += "</section>\n";
   html += summary_section(report) + self_check_section(report) + measurement_section(report) + views_section(report) +
           registration_section(report) + timings_section(report) + pictures_section(pictures) +
-          provenance_section(report);
+          provenance_section(report) + files_section(report);
   if (with_viewer) {
     if (viewer.js.find("</script") != std::string_view::npos)
       throw std::logic_error("the viewer bundle holds \"</script\" and cannot be inlined");

@@ -1,6 +1,7 @@
 #include "run.hpp"
 
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -10,6 +11,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -24,6 +26,7 @@
 #include "slscan/core/measure.hpp"
 #include "slscan/io/capture_replay.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/session/batch.hpp"
 #include "slscan/session/live_scan.hpp"
 #include "slscan/session/reprocess.hpp"
 #include "status.hpp"
@@ -72,15 +75,58 @@ core::ReconstructionOptions options_from(const std::string& config_path, const M
   return options;
 }
 
+// "2026-12-03T14:16:03Z".
+std::string utc_seconds(std::chrono::system_clock::time_point when) {
+  const std::time_t t = std::chrono::system_clock::to_time_t(when);
+  std::tm tm{};
+  ::gmtime_r(&t, &tm);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return text;
+}
+
+// A file's modification time; nullopt when it cannot be read.
+std::optional<std::chrono::system_clock::time_point> file_time(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) return std::nullopt;
+  return std::chrono::system_clock::from_time_t(st.st_mtime);
+}
+
+// Who ran what when: the run's start, part and operator (report.json "run").
+struct RunInfo {
+  std::string command;  // "scan" or "reprocess"
+  std::chrono::system_clock::time_point started;
+  std::string part_id;
+  std::string operator_name;
+};
+
 json provenance(const core::ReconstructionOptions& options, const slproto::RigCalibration& calibration,
-                const std::string& calibration_path) {
-  return {{"software", {{"slscan", SLSCAN_VERSION}, {"protocol_version", slproto::protocol_version}}},
+                const std::string& calibration_path, const RunInfo& run) {
+  json calibration_json = {{"file", calibration_path},
+                           {"sha256", session::sha256_file(calibration_path)},
+                           {"source", calibration.source},
+                           {"created_by", calibration.created_by},
+                           {"camera_reprojection_rms_px", calibration.camera_reprojection_rms_px}};
+  // The calibration format has no creation date: the file's modification time stands for it.
+  if (const auto written = file_time(calibration_path)) {
+    calibration_json["file_utc"] = utc_seconds(*written);
+    const double days = std::chrono::duration<double>(run.started - *written).count() / 86400.0;
+    calibration_json["age_days"] = std::round(days * 10.0) / 10.0;
+  }
+  return {{"run",
+           {{"command", run.command},
+            {"started_utc", utc_seconds(run.started)},
+            {"part_id", run.part_id},
+            {"operator", run.operator_name}}},
+          {"software", {{"slscan", SLSCAN_VERSION}, {"protocol_version", slproto::protocol_version}}},
           {"parameters", config_to_json(options)},
-          {"calibration",
-           {{"file", calibration_path},
-            {"source", calibration.source},
-            {"created_by", calibration.created_by},
-            {"camera_reprojection_rms_px", calibration.camera_reprojection_rms_px}}}};
+          {"calibration", calibration_json}};
+}
+
+// The capture's hash and modification time (when it was recorded), for report.json "capture".
+void describe_capture_file(json& capture, const std::string& path) {
+  capture["sha256"] = session::sha256_file(path);
+  if (const auto written = file_time(path)) capture["file_utc"] = utc_seconds(*written);
 }
 
 std::string seconds_text(double seconds) {
@@ -275,6 +321,7 @@ namespace {
 
 int run_reprocess(const ReprocessRequest& request, const Console& console) {
   const auto start = Clock::now();
+  const RunInfo run{"reprocess", std::chrono::system_clock::now(), request.part_id, request.operator_name};
   // The options first: a command line that contradicts itself is refused before any file is read.
   const core::ReconstructionOptions options = options_from(request.config_path, request.mesh);
   const slproto::RigCalibration calibration = load_calibration_or_throw(request.calibration_path);
@@ -293,10 +340,16 @@ int run_reprocess(const ReprocessRequest& request, const Console& console) {
     throw_out_of_memory(request, "reprocess");
   }
 
-  json report = provenance(options, calibration, request.calibration_path);
+  json report = provenance(options, calibration, request.calibration_path, run);
   report["capture"] = {{"file", request.capture_path},
                        {"frames", replayed.summary.frames},
                        {"complete", replayed.summary.done.has_value()}};
+  describe_capture_file(report["capture"], request.capture_path);
+  // The capture in the output folder itself (reprocess --out of its own folder): linked too.
+  if (std::error_code e; std::filesystem::equivalent(
+          request.capture_path,
+          std::filesystem::path(request.output_dir) / std::filesystem::path(request.capture_path).filename(), e))
+    report["capture"]["in_folder"] = std::filesystem::path(request.capture_path).filename().string();
   if (replayed.summary.truncation) report["capture"]["truncated_at_byte"] = replayed.summary.truncation->record_offset;
   report["capture"]["missing"] = replayed.missing;
   if (replayed.summary.done) report["camera_link"] = camera_link_json(*replayed.summary.done, console);
@@ -354,6 +407,7 @@ int refuse_to_overwrite(const std::string& command, const std::string& capture) 
 
 int run_scan(const ScanCommand& command, const Console& console) {
   const auto start = Clock::now();
+  const RunInfo run{"scan", std::chrono::system_clock::now(), command.part_id, command.operator_name};
   if (const std::string capture = capture_in(command.output_dir); !capture.empty() && !command.overwrite)
     return refuse_to_overwrite("scan", capture);
   const core::ReconstructionOptions options = options_from(command.config_path, command.mesh);
@@ -403,8 +457,10 @@ int run_scan(const ScanCommand& command, const Console& console) {
   }
   const core::ScanResult& result = *scan.reconstruction;
   check_not_empty(result, request.capture_path, " (the capture is kept)");
-  json report = provenance(options, calibration, command.calibration_path);
-  report["capture"] = {{"file", "capture.slcap"}, {"frames", scan.frames}, {"complete", true}};
+  json report = provenance(options, calibration, command.calibration_path, run);
+  report["capture"] = {
+      {"file", "capture.slcap"}, {"in_folder", "capture.slcap"}, {"frames", scan.frames}, {"complete", true}};
+  describe_capture_file(report["capture"], request.capture_path);
   report["board"] = {{"name", scan.board.board_name()}, {"software", scan.board.software_version()}};
   json timing = json::array();
   for (const auto& stat : scan.done->timing())

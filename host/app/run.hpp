@@ -96,6 +96,8 @@ struct ReprocessRequest {
   std::string output_dir;
   std::string config_path;  // "" = defaults
   MeshOverrides mesh = {};
+  std::string part_id = {};        // for the reports (--part-id)
+  std::string operator_name = {};  // for the reports (--operator)
 };
 int run_reprocess(const ReprocessRequest& request, const Console& console);
 
@@ -116,6 +118,8 @@ struct ScanCommand {
   bool compress = false;               // record the capture with zstd-compressed frames
   bool overwrite = false;              // replace a capture already in output_dir (refused otherwise)
   MeshOverrides mesh;
+  std::string part_id;        // for the reports (--part-id)
+  std::string operator_name;  // for the reports (--operator)
 };
 int run_scan(const ScanCommand& command, const Console& console);
 

@@ -5,9 +5,13 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <chrono>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <regex>
+#include <set>
 
 #include "run.hpp"
 #include "slproto/capture.hpp"
@@ -17,6 +21,7 @@
 #include "slrig/rig.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/session/batch.hpp"
 #include "slscan/session/reprocess.hpp"
 
 namespace slscan::app {
@@ -138,6 +143,83 @@ TEST_F(Reprocess, BallBarMeasuresTrueAndRunsAreBitIdentical) {
   ASSERT_EQ(run_reprocess(request((dir_ / "scan.slcap").string(), "b"), console_), exit_ok);
   EXPECT_TRUE(read_bytes(dir_ / "a" / "model.ply") == read_bytes(dir_ / "b" / "model.ply"))
       << "two reprocessings of one capture differ";
+}
+
+// report.json and report.html say who ran what when, with which calibration (its hash, date and
+// age) and capture (its hash), and report.html links every file of the run in the folder.
+TEST_F(Reprocess, ReportsCarryProvenanceAndLinkEveryFileOfTheRun) {
+  // The hash function itself against FIPS 180-2's "abc" vector.
+  std::ofstream(dir_ / "abc.txt", std::ios::binary) << "abc";
+  EXPECT_EQ(session::sha256_file((dir_ / "abc.txt").string()),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+
+  const fs::path calibration = dir_ / "aged_calibration.json";
+  fs::copy_file(dir_ / "calib.json", calibration, fs::copy_options::overwrite_existing);
+  fs::last_write_time(calibration, fs::file_time_type::clock::now() - std::chrono::hours(3 * 24 + 12));
+  // The capture in the output folder itself: linked with the rest.
+  fs::create_directories(dir_ / "own");
+  fs::copy_file(dir_ / "scan.slcap", dir_ / "own" / "capture.slcap", fs::copy_options::overwrite_existing);
+  ReprocessRequest r = request((dir_ / "own" / "capture.slcap").string(), "own");
+  r.calibration_path = calibration.string();
+  r.part_id = "blade <17> & co";
+  r.operator_name = "J. Doe";
+  const std::time_t before = std::time(nullptr);
+  ASSERT_EQ(run_reprocess(r, console_), exit_ok);
+  const std::time_t after = std::time(nullptr);
+  const fs::path out = dir_ / "own";
+  const auto report = nlohmann::json::parse(read_bytes(out / "report.json"));
+
+  EXPECT_EQ(report["run"]["command"], "reprocess");
+  EXPECT_EQ(report["run"]["part_id"], "blade <17> & co");
+  EXPECT_EQ(report["run"]["operator"], "J. Doe");
+  const std::string started = report["run"]["started_utc"].get<std::string>();
+  ASSERT_TRUE(std::regex_match(started, std::regex(R"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ)"))) << started;
+  std::tm tm{};
+  ASSERT_NE(::strptime(started.c_str(), "%Y-%m-%dT%H:%M:%SZ", &tm), nullptr);
+  const std::time_t started_at = ::timegm(&tm);
+  EXPECT_GE(started_at, before - 1);
+  EXPECT_LE(started_at, after);
+  EXPECT_EQ(report["software"]["slscan"].get<std::string>().empty(), false);
+
+  const auto& cal = report["calibration"];
+  EXPECT_EQ(cal["sha256"], session::sha256_file(calibration.string()));
+  EXPECT_NEAR(cal["age_days"].get<double>(), 3.5, 0.1) << cal.dump();
+  ASSERT_TRUE(cal.contains("file_utc"));
+  std::tm written{};
+  ASSERT_NE(::strptime(cal["file_utc"].get<std::string>().c_str(), "%Y-%m-%dT%H:%M:%SZ", &written), nullptr);
+  EXPECT_NEAR(static_cast<double>(started_at - ::timegm(&written)), 3.5 * 86400, 60);
+  EXPECT_EQ(report["capture"]["sha256"], session::sha256_file((out / "capture.slcap").string()));
+  EXPECT_EQ(report["capture"]["in_folder"], "capture.slcap");
+
+  // Every file in the folder is listed and linked, and every listed file is there.
+  const auto& files = report["files"];
+  std::set<std::string> listed;
+  for (const auto& f : files) listed.insert(f.get<std::string>());
+  const std::string html = read_bytes(out / "report.html");
+  std::size_t on_disk = 0;
+  for (const auto& entry : fs::recursive_directory_iterator(out)) {
+    if (!entry.is_regular_file()) continue;
+    ++on_disk;
+    const std::string relative = fs::relative(entry.path(), out).generic_string();
+    EXPECT_TRUE(listed.count(relative)) << relative << " is in the folder but not in report.json's files";
+    EXPECT_NE(html.find("<a href=\"" + relative + "\">"), std::string::npos) << relative << " is not linked";
+  }
+  EXPECT_EQ(listed.size(), on_disk) << files.dump();
+  for (const char* expected : {"capture.slcap", "model.ply", "views/view_0.ply", "report.json", "report.html"})
+    EXPECT_TRUE(listed.count(expected)) << expected;
+  EXPECT_NE(html.find("blade &lt;17&gt; &amp; co"), std::string::npos) << "the part id, escaped";
+  EXPECT_NE(html.find("J. Doe"), std::string::npos);
+  EXPECT_NE(html.find(cal["sha256"].get<std::string>()), std::string::npos);
+  EXPECT_NE(html.find(report["capture"]["sha256"].get<std::string>()), std::string::npos);
+  EXPECT_NE(html.find("3.5 days before the run"), std::string::npos);
+
+  // A capture elsewhere is named, hashed, but not linked as a file of the folder.
+  ASSERT_EQ(run_reprocess(request((dir_ / "scan.slcap").string(), "elsewhere"), console_), exit_ok);
+  const auto other = nlohmann::json::parse(read_bytes(dir_ / "elsewhere" / "report.json"));
+  EXPECT_EQ(other["capture"]["sha256"], report["capture"]["sha256"]);
+  EXPECT_FALSE(other["capture"].contains("in_folder"));
+  for (const auto& f : other["files"]) EXPECT_NE(f, "capture.slcap");
+  EXPECT_EQ(other["run"]["part_id"], "");
 }
 
 TEST_F(Reprocess, CompressedCaptureReprocessesToTheSameOutputs) {

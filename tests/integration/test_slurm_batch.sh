@@ -126,13 +126,13 @@ for c in a b c; do
     fail "local reprocess of $c.slcap"
 done
 
-# Every output byte-identical, except the wall-clock timings of the stages in report.json and
-# report.html (they differ between any two runs, local ones too): those lines are compared
-# without their figures.
+# Every output byte-identical, except the wall-clock timings of the stages and the run's start
+# (with the calibration's age at it) in report.json and report.html (they differ between any two
+# runs, local ones too): those are compared without their figures.
 untimed() {
   case "$1" in
-    *.json) sed -E '/"stage_ms": \{/,/\}/d; /"[a-z_]+_ms": /d' "$1" ;;
-    *) sed -E '/ ms<\/td>|\(ms\)/d' "$1" ;;
+    *.json) sed -E '/"stage_ms": \{/,/\}/d; /"[a-z_]+_ms": /d; /"started_utc": /d; /"age_days": /d' "$1" ;;
+    *) sed -E '/ ms<\/td>|\(ms\)/d; s/started [0-9T:Z-]+//; s/[0-9.]+ days before the run//' "$1" ;;
   esac
 }
 same_outputs() {  # same_outputs LOCAL BATCH
