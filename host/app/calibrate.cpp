@@ -122,7 +122,11 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
     console.info("rendering the virtual rig's calibration capture (" + command.virtual_rig + ")");
     rendered = virtual_rig::render_virtual_calibration_capture(
         slrig::scene_preset("calibration", size).value(),
-        "virtual rig, calibration preset (" + command.virtual_rig + ")");
+        "virtual rig, calibration preset (" + command.virtual_rig + ")", 0.05,
+        [&](std::size_t done, std::size_t total, const std::string& pose) {
+          console.progress({"rendering", done, total, "poses", pose});
+        });
+    console.end_progress();
     capture = rendered->capture;
     if (!command.write_capture_dir.empty()) {
       io::write_calibration_capture(capture, command.write_capture_dir);
@@ -138,9 +142,21 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
                  std::to_string(capture.poses.size()) + " poses from " + command.capture_dir);
   }
   core::RigCalibrationResult result;
+  // Poses measured, then the solves: one progress line each.
+  std::optional<core::CalibrationProgress::Phase> phase;
+  options.progress = [&](const core::CalibrationProgress& p) {
+    if (phase && *phase != p.phase) console.end_progress();
+    phase = p.phase;
+    if (p.phase == core::CalibrationProgress::Phase::poses)
+      console.progress({"measuring poses", p.done, p.total, "poses", p.step});
+    else
+      console.progress({"solving", p.done, p.total, {}, p.step});
+  };
   try {
     result = core::calibrate_rig(capture, options);
+    console.end_progress();
   } catch (const std::runtime_error& e) {
+    console.end_progress();
     // Too few usable poses: the message names the counts and every skipped image.
     console.warn(std::string("calibration failed: ") + e.what());
     return exit_bad_input;

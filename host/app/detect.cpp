@@ -181,7 +181,7 @@ DetectResult detect_conventions(const DetectInput& input, const Console& console
     for (std::size_t i = 0; i < candidates.size(); ++i) {
       const io::PoseDirection p = poses.empty() ? pose : poses[i];
       const Evaluator::Outcome o = evaluator.evaluate(candidates[i].second, p, name);
-      console.progress("detect " + name, i + 1, candidates.size());
+      console.progress({"detect " + name, i + 1, candidates.size(), "candidates", {}});
       result.candidates.push_back({name, candidates[i].first, o.ok ? o.score : 0.0, false, o.note});
       if (o.ok && o.score > winner_score + 1e-9) {
         winner_score = o.score;

@@ -248,35 +248,64 @@ void install_interrupt_handler() {
   sigaction(SIGINT, &action, nullptr);
 }
 
+namespace {
+
+// Every --json-log line: its UTC time first, then the fields.
+json log_line(const char* level) {
+  json line;
+  line["time"] = utc_timestamp(std::chrono::system_clock::now());
+  line["level"] = level;
+  return line;
+}
+
+double rounded_ms(double seconds) { return std::round(seconds * 1000.0) / 1000.0; }
+
+}  // namespace
+
 void Console::info(const std::string& text) const {
   if (quiet) return;
-  if (json_log)
-    std::cerr << json{{"level", "info"}, {"message", text}}.dump() << "\n";
-  else
+  if (json_log) {
+    json line = log_line("info");
+    line["message"] = text;
+    std::cerr << line.dump() << "\n";
+  } else {
     std::cerr << text << "\n";
+  }
 }
 
 void Console::warn(const std::string& text) const {
-  if (json_log)
-    std::cerr << json{{"level", "warning"}, {"message", text}}.dump() << "\n";
-  else
+  if (json_log) {
+    json line = log_line("warning");
+    line["message"] = text;
+    std::cerr << line.dump() << "\n";
+  } else {
     std::cerr << "warning: " << text << "\n";
+  }
 }
 
-void Console::progress(const std::string& stage, std::size_t done, std::size_t total) const {
+void Console::progress(const session::Progress& update) const {
   if (quiet) return;
+  const ProgressReading reading = meter.update(update, ProgressMeter::Clock::now());
   if (json_log) {
-    std::cerr << json{{"level", "progress"}, {"stage", stage}, {"done", done}, {"total", total}}.dump() << "\n";
+    json line = log_line("progress");
+    line["stage"] = update.stage;
+    line["done"] = update.done;
+    line["total"] = update.total;
+    if (!update.unit.empty()) line["unit"] = update.unit;
+    if (!update.step.empty()) line["step"] = update.step;
+    line["elapsed_s"] = rounded_ms(reading.elapsed_s);
+    if (reading.rate_per_s) line["rate_per_s"] = std::round(*reading.rate_per_s * 1000.0) / 1000.0;
+    if (reading.eta_s) line["eta_s"] = rounded_ms(*reading.eta_s);
+    std::cerr << line.dump() << "\n";
     return;
   }
   if (!::isatty(STDERR_FILENO)) return;
-  const int width = 30;
-  const int filled = total ? static_cast<int>(width * done / total) : 0;
-  std::cerr << "\r" << stage << " [" << std::string(static_cast<std::size_t>(filled), '#')
-            << std::string(static_cast<std::size_t>(width - filled), '.') << "] " << done << "/" << total << std::flush;
+  // \r redraws the line, ESC[K clears what a longer earlier line left after it.
+  std::cerr << "\r" << progress_line(update, reading) << "\x1b[K" << std::flush;
 }
 
 void Console::end_progress() const {
+  meter.reset();
   if (!quiet && !json_log && ::isatty(STDERR_FILENO)) std::cerr << "\n";
 }
 

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "feature_report.hpp"
+#include "progress.hpp"
 #include "slscan/core/feature_metrology.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
 #include "slscan/session/session_log.hpp"
@@ -50,9 +51,12 @@ struct Console {
   bool json_log = false;  // one JSON object per line on stderr instead of text
   void info(const std::string& text) const;
   void warn(const std::string& text) const;
-  // A progress line for long steps (redrawn in place on a terminal).
-  void progress(const std::string& stage, std::size_t done, std::size_t total) const;
+  // A progress line for long steps with its rate and ETA (progress.hpp), redrawn in place when
+  // stderr is a terminal and not shown otherwise; with json_log, one line per update with the
+  // same figures. Nothing with quiet.
+  void progress(const session::Progress& update) const;
   void end_progress() const;
+  mutable ProgressMeter meter{};  // the stage the progress line follows
 };
 
 // A console as what a session (host/session) tells its user.
@@ -61,9 +65,7 @@ class ConsoleLog final : public session::SessionLog {
   explicit ConsoleLog(const Console& console) : console_(console) {}
   void info(const std::string& text) const override { console_.info(text); }
   void warn(const std::string& text) const override { console_.warn(text); }
-  void progress(const std::string& stage, std::size_t done, std::size_t total) const override {
-    console_.progress(stage, done, total);
-  }
+  void progress(const session::Progress& update) const override { console_.progress(update); }
   void end_progress() const override { console_.end_progress(); }
 
  private:

@@ -202,10 +202,14 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   std::array<std::vector<std::size_t>, 2> proj_pose;
   std::vector<TurntableView> table_views;
   std::vector<std::size_t> table_pose;
+  auto tell = [&](CalibrationProgress::Phase phase, std::size_t done, std::size_t total, std::string step) {
+    if (options.progress) options.progress({phase, done, total, std::move(step)});
+  };
   for (std::size_t p = 0; p < capture.poses.size(); ++p) {
     const CalibrationPose& pose = capture.poses[p];
     PoseReport& pr = report.poses[p];
     pr.name = pose.name.empty() ? "pose " + std::to_string(p) : pose.name;
+    tell(CalibrationProgress::Phase::poses, p, capture.poses.size(), pr.name);
     pr.on_turntable = pose.on_turntable;
     pr.table_angle_deg = pose.table_angle_deg;
     PoseMeasurement measured = measure_pose(frames[p], plans, capture.target, options, decoders);
@@ -261,6 +265,10 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   };
 
   // 2. Camera.
+  const std::size_t solves = 3 + (options.joint_refinement ? 1 : 0) + (options.turntable ? 1 : 0);
+  std::size_t solved = 0;
+  tell(CalibrationProgress::Phase::poses, capture.poses.size(), capture.poses.size(), {});
+  tell(CalibrationProgress::Phase::solve, solved++, solves, "camera");
   if (static_cast<int>(camera_views.size()) < options.min_camera_views)
     throw std::runtime_error("calibration: the board was found in " + std::to_string(camera_views.size()) +
                              " poses, at least " + std::to_string(options.min_camera_views) +
@@ -278,6 +286,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
 
   // 3. Projectors.
   for (std::size_t s = 0; s < 2; ++s) {
+    tell(CalibrationProgress::Phase::solve, solved++, solves, side_label(kSides[s]));
     if (static_cast<int>(proj_views[s].size()) < options.min_projector_views)
       throw std::runtime_error("calibration: the " + side_label(kSides[s]) + " has corner coordinates in " +
                                std::to_string(proj_views[s].size()) + " poses, at least " +
@@ -295,6 +304,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   // 4. The whole rig at once (refine_rig_jointly): the projectors' precise corners pin the
   // target poses and through them the camera's intrinsics.
   if (options.joint_refinement) {
+    tell(CalibrationProgress::Phase::solve, solved++, solves, "joint refinement");
     std::vector<std::size_t> camera_view_of_pose(capture.poses.size(), 0);
     for (std::size_t i = 0; i < camera_pose.size(); ++i) camera_view_of_pose[camera_pose[i]] = i;
     std::array<ProjectorObservations, 2> observations;
@@ -321,6 +331,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   // 5. Turntable.
   cal.turntable.platform_radius_mm = capture.platform_radius_mm;
   if (options.turntable) {
+    tell(CalibrationProgress::Phase::solve, solved++, solves, "turntable");
     if (static_cast<int>(table_views.size()) < options.min_turntable_views)
       throw std::runtime_error("calibration: the board was found in " + std::to_string(table_views.size()) +
                                " turntable poses, at least " + std::to_string(options.min_turntable_views) +
@@ -345,6 +356,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
                                   table.reprojection_rms_px[i], table.flipped[i]});
   }
 
+  tell(CalibrationProgress::Phase::solve, solved, solves, {});
   cal.pattern_plan = capture.pattern_plan;
   cal.source = capture.source;
   cal.created_by = options.created_by;

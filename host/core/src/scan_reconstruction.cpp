@@ -531,7 +531,7 @@ std::vector<int> ScanReconstructor::incomplete_views() const {
   return impl_->incomplete;
 }
 
-ScanResult ScanReconstructor::finish(const std::atomic<bool>* stop) {
+ScanResult ScanReconstructor::finish(const std::atomic<bool>* stop, const std::function<void(const char*)>& on_stage) {
   // The stage running, for an out-of-memory report. A stop is honoured at each boundary and
   // inside the long stages (per projector-view, view, ICP iteration), through `interrupt`; the
   // stage is only changed on this thread, between stages, so the workers read it unchanged.
@@ -542,6 +542,7 @@ ScanResult ScanReconstructor::finish(const std::atomic<bool>* stop) {
   auto begin_stage = [&](const char* next) {
     stage = next;
     interrupt();
+    if (on_stage) on_stage(next);
   };
   try {
     return final_stages(begin_stage, interrupt, stop);

@@ -285,7 +285,7 @@ BatchPlan plan_batch(const BatchPlanRequest& request, const SessionLog& log) {
                                              it->second.capture_mtime_ns == job.capture_mtime_ns) {
       job.capture_sha256 = it->second.capture_sha256;
     } else {
-      log.progress("hashing captures", hashed, request.captures.size());
+      log.progress({"hashing captures", hashed, request.captures.size(), "captures", {}});
       job.capture_sha256 = sha256_file(job.capture);
       ++hashed;
     }
@@ -542,7 +542,7 @@ LocalRunSummary run_batch_locally(const BatchPlan& plan, int parallel, const Ses
                (WIFEXITED(wstatus) ? "exit " + std::to_string(WEXITSTATUS(wstatus))
                                    : "signal " + std::to_string(WTERMSIG(wstatus))) +
                "; see " + plan.log_path(index));
-    log.progress("batch", summary.done + summary.failed, total);
+    log.progress({"batch", summary.done + summary.failed, total, "jobs", {}});
   }
   log.end_progress();
   return summary;

@@ -165,7 +165,7 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
       }
       if (message->get<slproto::pb::FrameHeader>() != nullptr) {
         ++frames;  // checked and recorded, reconstructed or not
-        if (!abort_sent && !out.out_of_memory_stage) log.progress("frames", frames, expected);
+        if (!abort_sent && !out.out_of_memory_stage) log.progress({"frames", frames, expected, "frames", {}});
       } else if (const auto* scan_done = message->get<slproto::pb::ScanDone>()) {
         out.done = *scan_done;
       } else if (const auto* error = message->get<slproto::pb::Error>()) {

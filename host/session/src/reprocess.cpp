@@ -30,7 +30,7 @@ ReprocessResult reprocess_capture(const std::string& capture_path, const slproto
       [&](const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
         if (stop != nullptr && stop->load()) throw core::ReconstructionInterrupted("frames");
         stream.add(header, payload);
-        log.progress("frames", stream.received().size(), expected_frames);
+        log.progress({"frames", stream.received().size(), expected_frames, "frames", {}});
       });
   log.end_progress();
   if (!out.summary.request) throw io::IoError(capture_path + ": the capture has no scan request");

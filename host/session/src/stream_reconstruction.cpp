@@ -1,5 +1,6 @@
 #include "slscan/session/stream_reconstruction.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <new>
 #include <string>
@@ -38,13 +39,34 @@ void StreamReconstruction::add(const slproto::pb::FrameHeader& header, std::span
   received_.back().clear_timing_events();
 }
 
+const std::vector<std::string>& reconstruction_stages() {
+  static const std::vector<std::string> stages{"wait_for_views", "fuse_remaining", "register", "select_views",
+                                               "merge",          "voxel",          "normals",  "mesh"};
+  return stages;
+}
+
 core::ScanResult StreamReconstruction::finish(const std::atomic<bool>* stop, const SessionLog* log) {
   if (!reconstructor_) throw io::IoError("the capture holds no frames");
-  core::ScanResult result = reconstructor_->finish(stop);
-  const core::InterruptionPoint interrupt = [stop] {
-    if (stop != nullptr && stop->load()) throw core::ReconstructionInterrupted("mesh");
+  const std::vector<std::string>& stages = reconstruction_stages();
+  auto show = [&](const char* stage) {
+    if (log == nullptr) return;
+    const auto at = std::find(stages.begin(), stages.end(), stage);
+    log->progress({"reconstruction", static_cast<std::size_t>(at - stages.begin()), stages.size(), {}, stage});
+  };
+  core::ScanResult result;
+  try {
+    result = reconstructor_->finish(stop, show);
+  } catch (...) {
+    if (log != nullptr) log->end_progress();
+    throw;
+  }
+  const core::InterruptionPoint interrupt = [stop, log] {
+    if (stop == nullptr || !stop->load()) return;
+    if (log != nullptr) log->end_progress();
+    throw core::ReconstructionInterrupted("mesh");
   };
   interrupt();
+  show("mesh");
   // The mesh step (slscan_mesh): here rather than in core, which does not link OpenVDB. A cloud
   // the mesher refuses leaves the model and the reports as they are, with the reason.
   const auto start = std::chrono::steady_clock::now();
@@ -56,10 +78,15 @@ core::ScanResult StreamReconstruction::finish(const std::atomic<bool>* stop, con
     } catch (const std::invalid_argument& e) {
       result.mesh_error = e.what();
     } catch (const std::bad_alloc&) {
+      if (log != nullptr) log->end_progress();
       throw core::ReconstructionOutOfMemory("mesh");
     }
   }
   result.stage_ms["mesh"] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  if (log != nullptr) {
+    log->progress({"reconstruction", stages.size(), stages.size(), {}, "done"});
+    log->end_progress();
+  }
   return result;
 }
 

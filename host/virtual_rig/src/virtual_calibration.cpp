@@ -31,7 +31,8 @@ double angle_deg(const Vec3& a, const Vec3& b) {
 }  // namespace
 
 VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene& calibration_scene,
-                                                             const std::string& source, double table_angle_sigma_deg) {
+                                                             const std::string& source, double table_angle_sigma_deg,
+                                                             const RenderProgress& progress) {
   slrig::Scene scene = calibration_scene;
   scene.turntable.angle_error_sigma_deg = table_angle_sigma_deg;
   const slrig::SceneObject& board = scene.objects.at(0);
@@ -45,8 +46,10 @@ VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene&
   const std::array<slproto::PatternPlan, 2> plans{capture.plan(slproto::CodingAxis::columns),
                                                   capture.plan(slproto::CodingAxis::rows)};
   const int depth = scene.sensor.bit_depth;
-  for (slrig::CalibrationPoseSpec& spec : slrig::calibration_poses(scene)) {
+  std::vector<slrig::CalibrationPoseSpec> specs = slrig::calibration_poses(scene);
+  for (slrig::CalibrationPoseSpec& spec : specs) {
     const int pose = static_cast<int>(capture.poses.size());
+    if (progress) progress(capture.poses.size(), specs.size(), spec.name);
     capture.poses.push_back({spec.name, spec.on_turntable, spec.commanded_angle_deg});
     if (!spec.on_turntable) {
       out.cam_from_board.push_back(spec.cam_from_board);
@@ -90,6 +93,7 @@ VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene&
                                     render_frame(r, side, plans[a], i, depth)});
     }
   }
+  if (progress) progress(specs.size(), specs.size(), {});
   scene.objects.clear();
   out.truth = slrig::ground_truth_calibration(scene);
   return out;

@@ -12,6 +12,8 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
+#include <functional>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -56,6 +58,16 @@ struct CalibrationCapture {
   slproto::PatternPlan plan(slproto::CodingAxis axis) const;
 };
 
+// How far calibrate_rig has come, for a progress line: the poses measured (`done` of `total`,
+// `step` the pose under way), then the solves (camera, each projector, the joint refinement,
+// the turntable; `step` the one under way).
+struct CalibrationProgress {
+  enum class Phase { poses, solve } phase = Phase::poses;
+  std::size_t done = 0;
+  std::size_t total = 0;
+  std::string step;
+};
+
 struct CalibrationOptions {
   LensModelOptions camera_lens;
   LensModelOptions projector_lens;
@@ -71,6 +83,7 @@ struct CalibrationOptions {
   // with the camera fixed).
   bool joint_refinement = true;
   std::string created_by = "slscan calibrate";
+  std::function<void(const CalibrationProgress&)> progress;  // told as each pose and solve begins
 };
 
 struct PoseReport {

@@ -203,8 +203,9 @@ class ScanReconstructor {
   // with no complete projector is skipped and counted in `incomplete_views`. `stop` (Ctrl-C) is
   // checked between stages and inside them (per projector-view still to decode, per view, per
   // ICP iteration): set, finish() throws ReconstructionInterrupted naming the stage.
-  // A stage that runs out of memory throws ReconstructionOutOfMemory naming it.
-  ScanResult finish(const std::atomic<bool>* stop = nullptr);
+  // A stage that runs out of memory throws ReconstructionOutOfMemory naming it. `on_stage`, when
+  // given, is told each stage's name (the keys of ScanResult::stage_ms) as it begins.
+  ScanResult finish(const std::atomic<bool>* stop = nullptr, const std::function<void(const char*)>& on_stage = {});
   std::vector<int> incomplete_views() const;
 
  private:

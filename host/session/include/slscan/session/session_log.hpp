@@ -9,13 +9,24 @@
 
 namespace slscan::session {
 
+// How far a long step has come: `done` of `total` items of `stage`, counted in `unit`
+// ("frames", "poses"; empty when the items are steps of unequal length, which have no rate or
+// ETA), and which of them is under way (`step`, e.g. the reconstruction stage's name).
+struct Progress {
+  std::string stage;
+  std::size_t done = 0;
+  std::size_t total = 0;
+  std::string unit;
+  std::string step;
+};
+
 class SessionLog {
  public:
   virtual ~SessionLog() = default;
   virtual void info(const std::string& text) const = 0;
   virtual void warn(const std::string& text) const = 0;
-  // A long step's progress (`done` of `total` items of `stage`), and its end.
-  virtual void progress(const std::string& stage, std::size_t done, std::size_t total) const = 0;
+  // A long step's progress, and its end.
+  virtual void progress(const Progress& progress) const = 0;
   virtual void end_progress() const = 0;
 };
 
@@ -24,7 +35,7 @@ class QuietLog final : public SessionLog {
  public:
   void info(const std::string&) const override {}
   void warn(const std::string&) const override {}
-  void progress(const std::string&, std::size_t, std::size_t) const override {}
+  void progress(const Progress&) const override {}
   void end_progress() const override {}
 };
 

@@ -32,6 +32,7 @@ class StreamReconstruction {
   // view, ICP iteration, block of the mesh: core::ReconstructionInterrupted naming the stage), a
   // stage out of memory is core::ReconstructionOutOfMemory. `log` (if any) is told when the mesh
   // stage begins.
+  // `log` (if any) also shows which of the stages (reconstruction_stages) is under way.
   core::ScanResult finish(const std::atomic<bool>* stop = nullptr, const SessionLog* log = nullptr);
   // The headers of the frames added so far (timing events dropped), for what is missing.
   const std::vector<slproto::pb::FrameHeader>& received() const { return received_; }
@@ -43,6 +44,9 @@ class StreamReconstruction {
   std::unique_ptr<core::ScanReconstructor> reconstructor_;
   std::vector<slproto::pb::FrameHeader> received_;
 };
+
+// The stages after the last frame, in order (the keys of core::ScanResult::stage_ms).
+const std::vector<std::string>& reconstruction_stages();
 
 // "period_px 8 in the capture, 16 in the calibration; ..." for each field that differs.
 std::string plan_differences(const slproto::PatternPlanConfig& capture, const slproto::PatternPlanConfig& calibration);

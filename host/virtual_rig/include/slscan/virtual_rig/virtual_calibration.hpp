@@ -5,6 +5,8 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -27,10 +29,13 @@ struct VirtualCalibrationCapture {
 // Renders every pose of `calibration_scene` (scene_preset("calibration", size)): free poses
 // with each projector's plan along columns and rows, turntable poses as one image of both
 // projectors' white. The turntable misses each commanded angle by a random
-// N(0, table_angle_sigma_deg) (a table that does not quite do as told).
+// N(0, table_angle_sigma_deg) (a table that does not quite do as told). `progress`, when given,
+// is told as each pose begins (`done` of `total` poses, its name) and once at the end.
+using RenderProgress = std::function<void(std::size_t done, std::size_t total, const std::string& pose)>;
 VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene& calibration_scene,
                                                              const std::string& source,
-                                                             double table_angle_sigma_deg = 0.05);
+                                                             double table_angle_sigma_deg = 0.05,
+                                                             const RenderProgress& progress = {});
 
 // The calibration's errors against the truth, in the terms (docs/calibration.md).
 struct CalibrationErrors {
