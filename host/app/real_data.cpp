@@ -14,6 +14,7 @@
 #include <tuple>
 
 #include "detect.hpp"
+#include "progress.hpp"
 #include "slproto/calibration.hpp"
 #include "slscan/io/foreign_calibration.hpp"
 #include "slscan/io/image_sequence_import.hpp"
@@ -207,10 +208,10 @@ int run_compare(const CompareCommand& command, const Console& console) {
     throw std::invalid_argument("compare: --project-pixels needs --calib (the camera to project with)");
   const slproto::PinholeModel* camera = calibration ? &calibration->camera : nullptr;
   if (!(command.max_distance_mm > 0) || !std::isfinite(command.max_distance_mm))
-    throw std::invalid_argument("compare: --max-distance " + std::to_string(command.max_distance_mm) +
+    throw std::invalid_argument("compare: --max-distance " + short_number(command.max_distance_mm) +
                                 " must be a finite distance > 0 (mm)");
   if (!(command.min_matched >= 0 && command.min_matched <= 1))
-    throw std::invalid_argument("compare: --min-matched " + std::to_string(command.min_matched) +
+    throw std::invalid_argument("compare: --min-matched " + short_number(command.min_matched) +
                                 " must be a share in [0, 1]");
   const core::PixelTaggedCloud measured = read_pixel_tagged_ply(command.measured_path, camera, command.project_pixels);
   const core::PixelTaggedCloud reference =

@@ -8,6 +8,7 @@
 #include <iostream>
 #include <nlohmann/json.hpp>
 
+#include "progress.hpp"
 #include "slproto/handshake.hpp"
 #include "slproto/status.hpp"
 #include "slproto/transport.hpp"
@@ -193,7 +194,7 @@ std::string format_discovered(const std::vector<slproto::DiscoveredScanner>& sca
 
 int run_discover(const DiscoverCommand& command, const Console& console) {
   if (!(command.wait_s > 0 && command.wait_s <= 60))
-    throw std::invalid_argument("--wait must be in (0, 60] seconds, not " + std::to_string(command.wait_s));
+    throw std::invalid_argument("--wait must be in (0, 60] seconds, not " + short_number(command.wait_s));
   auto found = slproto::browse_scanners(std::chrono::milliseconds(static_cast<long>(command.wait_s * 1000)));
   if (!found) throw DeviceError(found.error().message);
   if (command.json) {
@@ -213,7 +214,7 @@ int run_discover(const DiscoverCommand& command, const Console& console) {
     return exit_ok;
   }
   if (found->empty()) {
-    console.warn("no scanner answered within " + std::to_string(command.wait_s).substr(0, 4) +
+    console.warn("no scanner answered within " + short_number(command.wait_s) +
                  " s (is slscand running with a non-loopback bind_address and avahi-daemon on the board, and "
                  "are both on this network segment? Otherwise give the scanner as HOST:PORT)");
     return exit_device;

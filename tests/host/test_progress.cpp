@@ -119,6 +119,15 @@ TEST(Progress, TheTerminalLineShowsBarCountRateAndEta) {
             "rendering [....] 3/20 free pose 4 0.250 poses/s, ETA 1:08");
 }
 
+TEST(Progress, NumbersInMessagesHaveTheDigitsTheyWereGivenWith) {
+  EXPECT_EQ(short_number(0.5), "0.5");
+  EXPECT_EQ(short_number(2), "2");
+  EXPECT_EQ(short_number(-1), "-1");
+  EXPECT_EQ(short_number(11.864247), "11.8642");
+  EXPECT_EQ(short_number(1e-7), "1e-07");
+  EXPECT_EQ(short_number(0.1 + 0.2), "0.3");
+}
+
 TEST(Progress, UtcTimestampsAreIso8601WithMilliseconds) {
   using std::chrono::system_clock;
   // 2026-12-03 14:16:03.123 UTC.

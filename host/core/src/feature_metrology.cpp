@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <random>
 #include <stdexcept>
@@ -10,6 +11,13 @@
 
 namespace slscan::core {
 namespace {
+
+// A length for a message: the digits it was given with ("0.5", not "0.500000").
+std::string mm_text(double mm) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", mm);
+  return text;
+}
 
 constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr std::size_t kMinRegionPoints = 100;
@@ -107,7 +115,7 @@ SphereFeature sphere_feature(const std::vector<Eigen::Vector3f>& points, const S
   }
   if (out.region.size() < kMinRegionPoints)
     throw std::runtime_error("sphere_feature: only " + std::to_string(out.region.size()) +
-                             " points in the sphere's region (within " + std::to_string(rule.band_mm) +
+                             " points in the sphere's region (within " + mm_text(rule.band_mm) +
                              " mm of its fit, outside " + std::to_string(out.joints.size()) + " joint cone(s))");
   std::vector<Eigen::Vector3f> kept;
   kept.reserve(out.region.size());
@@ -164,7 +172,7 @@ PlaneFeature plane_feature(const PointCloud& cloud, const FeatureRule& rule, int
       if (std::abs(best_n.dot(pts[i].cast<double>()) - best_d) <= rule.band_mm) next.push_back(i);
     if (next.size() < kMinRegionPoints)
       throw std::runtime_error("plane_feature: no plane with " + std::to_string(kMinRegionPoints) + " points within " +
-                               std::to_string(rule.band_mm) + " mm found");
+                               mm_text(rule.band_mm) + " mm found");
     if (next == region) break;
     region = std::move(next);
     std::vector<Eigen::Vector3f> kept;

@@ -25,6 +25,13 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+// A number for a message, as given ("0.5", not "0.500000").
+std::string short_number(double value) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", value);
+  return text;
+}
+
 double ms_since(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
@@ -49,7 +56,7 @@ void ReconstructionOptions::check() const {
   // A voxel below a micron thins nothing and costs a hash entry per point; above a metre it
   // leaves a handful of points: both are typos, not requests.
   if (voxel_mm != 0 && !(voxel_mm >= 0.001 && voxel_mm <= 1000))
-    throw std::invalid_argument("reconstruction options: model.voxel_mm " + std::to_string(voxel_mm) +
+    throw std::invalid_argument("reconstruction options: model.voxel_mm " + short_number(voxel_mm) +
                                 " outside [0.001, 1000] mm (0: no thinning)");
   if (normal_neighbors != 0 && normal_neighbors < 3)
     throw std::invalid_argument("reconstruction options: normal_neighbors must be 0 (the views' grid normals) or >= 3");
