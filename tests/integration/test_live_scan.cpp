@@ -21,6 +21,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <optional>
+#include <regex>
 #include <set>
 #include <sstream>
 #include <thread>
@@ -319,6 +320,61 @@ TEST_F(LiveScan, ReportHoldsCountsResidualsAndTimings) {
     EXPECT_TRUE(fs::exists(dir_ / "live" / name.get<std::string>())) << key;
   for (const auto& entry : fs::recursive_directory_iterator(dir_ / "live"))
     EXPECT_EQ(entry.path().filename().string().find(".tmp"), std::string::npos) << entry.path();
+}
+
+// --json-log: every line carries its UTC time; the frames' progress has its rate and ETA, the
+// reconstruction's stages after the last frame come in order and end at 8/8. The report names
+// the run and links the capture it recorded (docs/cli.md).
+TEST_F(LiveScan, JsonLogLinesCarryTheirTimeAndProgressFigures) {
+  const std::regex iso(R"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z)");
+  std::istringstream lines(scan_->err);
+  std::string line;
+  std::size_t parsed = 0, frame_lines = 0;
+  json last_frames;
+  std::vector<std::string> stages;
+  while (std::getline(lines, line)) {
+    if (line.empty() || line[0] != '{') continue;
+    const json entry = json::parse(line);
+    ++parsed;
+    ASSERT_TRUE(entry.contains("time") && std::regex_match(entry["time"].get<std::string>(), iso)) << line;
+    ASSERT_TRUE(entry.contains("level")) << line;
+    if (entry["level"] != "progress") continue;
+    EXPECT_GE(entry["elapsed_s"].get<double>(), 0.0) << line;
+    if (entry["stage"] == "frames") {
+      ++frame_lines;
+      EXPECT_EQ(entry["unit"], "frames");
+      last_frames = entry;
+    } else if (entry["stage"] == "reconstruction") {
+      stages.push_back(entry["step"].get<std::string>());
+    }
+  }
+  EXPECT_GT(parsed, 0u) << scan_->err;
+  const json r = report("live");
+  const auto frames = r["capture"]["frames"].get<std::size_t>();
+  EXPECT_EQ(frame_lines, frames);
+  ASSERT_FALSE(last_frames.is_null());
+  EXPECT_EQ(last_frames["done"].get<std::size_t>(), frames);
+  EXPECT_EQ(last_frames["total"].get<std::size_t>(), frames);
+  ASSERT_TRUE(last_frames.contains("rate_per_s")) << last_frames.dump();
+  // The rate is the frames after the first over the time since it.
+  EXPECT_NEAR(last_frames["rate_per_s"].get<double>(),
+              static_cast<double>(frames - 1) / last_frames["elapsed_s"].get<double>(),
+              0.01 * last_frames["rate_per_s"].get<double>() + 0.01);
+  EXPECT_EQ(last_frames["eta_s"].get<double>(), 0.0);
+  const std::vector<std::string> expected{"wait_for_views", "fuse_remaining", "register", "select_views", "merge",
+                                          "voxel",          "normals",        "mesh",     "done"};
+  EXPECT_EQ(stages, expected);
+
+  EXPECT_EQ(r["run"]["command"], "scan");
+  EXPECT_TRUE(
+      std::regex_match(r["run"]["started_utc"].get<std::string>(), std::regex(R"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ)")));
+  EXPECT_EQ(r["capture"]["sha256"].get<std::string>().size(), 64u);
+  EXPECT_EQ(r["calibration"]["sha256"].get<std::string>().size(), 64u);
+  EXPECT_GE(r["calibration"]["age_days"].get<double>(), 0.0);
+  std::set<std::string> files;
+  for (const auto& f : r["files"]) files.insert(f.get<std::string>());
+  for (const char* f : {"capture.slcap", "model.ply", "mesh.ply", "report.json", "report.html"})
+    EXPECT_TRUE(files.count(f)) << f << " not in " << r["files"].dump();
 }
 
 TEST_F(LiveScan, ReprocessOfTheRecordedCaptureIsBitIdentical) {
