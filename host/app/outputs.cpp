@@ -378,7 +378,10 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
   fs::create_directories(fs::path(dir) / "views");
   fs::create_directories(fs::path(dir) / "pictures");
   OutputFiles files;
-  const io::PlyWriteOptions ply{.binary = true, .comments = {"slscan fused model, turntable frame, mm"}};
+  const io::PlyWriteOptions ply{.binary = true,
+                                .comments = {"slscan fused model, turntable frame, mm",
+                                             "confidence: decode modulation (DN, summed over fused projectors); "
+                                             "intensity: albedo (white - black frame), 0..1 of full scale"}};
   files.model_ply = (fs::path(dir) / "model.ply").string();
   io::write_ply(files.model_ply, result.model, ply);
   if (result.meshed) {
@@ -395,8 +398,9 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
       io::write_mesh_ply(
           files.mesh_ply, mesh.vertices, mesh.normals, triangles,
           {.binary = true,
-           .comments = {"slscan mesh (" + mode + "), turntable frame, mm; face property filled = 1: closes a hole"}},
-          mesh.filled);
+           .comments = {"slscan mesh (" + mode + "), turntable frame, mm; face property filled = 1: closes a hole",
+                        "vertex intensity: albedo (white - black frame) of the points around it, 0..1 of full scale"}},
+          mesh.filled, mesh.intensity);
     }
     if (formats.stl) {
       files.mesh_stl = (fs::path(dir) / "mesh.stl").string();

@@ -5,8 +5,11 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cctype>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
@@ -226,6 +229,50 @@ TEST_F(Reprocess, ReportsCarryProvenanceAndLinkEveryFileOfTheRun) {
   EXPECT_FALSE(other["capture"].contains("in_folder"));
   for (const auto& f : other["files"]) EXPECT_NE(f, "capture.slcap");
   EXPECT_EQ(other["run"]["part_id"], "");
+}
+
+// The albedo channel in the files a user opens: model.ply's points carry `intensity` (0..1 of
+// full scale) and the grey red = green = blue = round(255 x intensity) that MeshLab and
+// CloudCompare show; mesh.ply's vertices carry the intensity of the points around them; the
+// readers (read_ply, as compare / inspect / measure use it) still read the model.
+TEST_F(Reprocess, ModelAndMeshCarryTheAlbedo) {
+  std::ofstream(dir_ / "mesh_config.json") << R"({"mesh": {"enabled": true}})";
+  ReprocessRequest with_mesh = request((dir_ / "scan.slcap").string(), "albedo");
+  with_mesh.config_path = (dir_ / "mesh_config.json").string();
+  ASSERT_EQ(run_reprocess(with_mesh, console_), exit_ok);
+  const io::PlyTable model = io::read_ply_table((dir_ / "albedo" / "model.ply").string());
+  const auto& intensity = model.column("intensity");
+  ASSERT_GT(intensity.size(), 5000u);
+  std::vector<double> sorted = intensity;
+  std::sort(sorted.begin(), sorted.end());
+  for (std::size_t i = 0; i < intensity.size(); ++i) {
+    ASSERT_GE(intensity[i], 0.0) << "point " << i;
+    ASSERT_LE(intensity[i], 1.0) << "point " << i;
+    const double grey = std::round(255 * intensity[i]);
+    ASSERT_EQ(model.column("red")[i], grey) << "point " << i;
+    ASSERT_EQ(model.column("green")[i], grey) << "point " << i;
+    ASSERT_EQ(model.column("blue")[i], grey) << "point " << i;
+  }
+  // The ball bar is matte white-ish (albedo 0.8 on the rig): a lit point reads well above black.
+  const double median = sorted[sorted.size() / 2];
+  std::printf("model intensity: median %.3f, 1-99 %% %.3f..%.3f over %zu points\n", median, sorted[sorted.size() / 100],
+              sorted[sorted.size() * 99 / 100], sorted.size());
+  EXPECT_GT(median, 0.2);
+  EXPECT_EQ(io::read_ply((dir_ / "albedo" / "model.ply").string()).intensity.size(), intensity.size());
+
+  const io::PlyTable mesh = io::read_ply_table((dir_ / "albedo" / "mesh.ply").string());
+  ASSERT_GT(mesh.faces.size(), 1000u);
+  const auto& vertex_intensity = mesh.column("intensity");
+  ASSERT_EQ(vertex_intensity.size(), mesh.vertex_count);
+  std::vector<double> vertex_sorted = vertex_intensity;
+  std::sort(vertex_sorted.begin(), vertex_sorted.end());
+  EXPECT_GE(vertex_sorted.front(), sorted.front());
+  EXPECT_LE(vertex_sorted.back(), sorted.back());
+  const double vertex_median = vertex_sorted[vertex_sorted.size() / 2];
+  std::printf("mesh vertex intensity: median %.3f over %zu vertices\n", vertex_median, vertex_sorted.size());
+  EXPECT_NEAR(vertex_median, median, 0.1 * median);
+  for (std::size_t i = 0; i < mesh.vertex_count; ++i)
+    ASSERT_EQ(mesh.column("red")[i], std::round(255 * vertex_intensity[i])) << "vertex " << i;
 }
 
 TEST_F(Reprocess, CompressedCaptureReprocessesToTheSameOutputs) {

@@ -49,6 +49,26 @@ TEST(Fusion, AgreeingMeanShadowFillAndRejection) {
   EXPECT_EQ(c.count_valid(), 3u);
 }
 
+TEST(Fusion, IntensityIsTheQualityWeightedMeanLikeThePoint) {
+  OrganizedCloud left, right;
+  left.resize(3, 1);
+  right.resize(3, 1);
+  set(left, 0, 0, {0, 0, 100.00f}, 30);
+  set(right, 0, 0, {0, 0, 100.05f}, 10);
+  set(left, 1, 0, {1, 0, 101}, 5);
+  set(right, 2, 0, {2, 0, 102}, 7);
+  left.intensity = {0.8f, 0.4f, 0.9f};
+  right.intensity = {0.2f, 0.7f, 0.3f};
+  const auto fused = slscan::core::fuse_left_right(left, right);
+  ASSERT_EQ(fused.cloud.intensity.size(), 3u);
+  EXPECT_NEAR(fused.cloud.intensity[0], (30 * 0.8 + 10 * 0.2) / 40, 1e-6);
+  EXPECT_EQ(fused.cloud.intensity[1], 0.4f) << "left only: the left's";
+  EXPECT_EQ(fused.cloud.intensity[2], 0.3f) << "right only: the right's";
+  // A side without the channel (hand-built clouds): the fused cloud has none rather than zeros.
+  right.intensity.clear();
+  EXPECT_TRUE(slscan::core::fuse_left_right(left, right).cloud.intensity.empty());
+}
+
 TEST(Fusion, ToleranceIsAnOption) {
   OrganizedCloud left, right;
   left.resize(1, 1);

@@ -1,6 +1,8 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -26,6 +28,7 @@ core::PointCloud example_cloud() {
     cloud.points.emplace_back(0.25f * i, -1.5f * i, 600.125f + i);
     cloud.normals.emplace_back(0.f, 0.6f, -0.8f);
     cloud.confidence.push_back(0.01f * i);
+    cloud.intensity.push_back(0.011f * static_cast<float>(i) - 0.05f);  // below 0 and above 1 at the ends
     cloud.view_id.push_back(static_cast<std::uint16_t>(i % 6));
   }
   return cloud;
@@ -40,11 +43,64 @@ TEST_F(PlyIo, BinaryRoundTripKeepsEveryChannel) {
     EXPECT_EQ(back.points[i], cloud.points[i]);
     EXPECT_EQ(back.normals[i], cloud.normals[i]);
     EXPECT_EQ(back.confidence[i], cloud.confidence[i]);
+    EXPECT_EQ(back.intensity[i], cloud.intensity[i]);
     EXPECT_EQ(back.view_id[i], cloud.view_id[i]);
   }
   const PlyTable table = read_ply_table(path("a.ply"));
   ASSERT_EQ(table.comments.size(), 1u);
   EXPECT_EQ(table.comments[0], "made by a test");
+  // The grey viewers show: red = green = blue = round(255 x intensity), clamped to 0..255.
+  EXPECT_EQ(table.property_names, (std::vector<std::string>{"x", "y", "z", "nx", "ny", "nz", "confidence", "intensity",
+                                                            "view_id", "red", "green", "blue"}));
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const double expected = std::clamp(std::round(255.0 * cloud.intensity[i]), 0.0, 255.0);
+    EXPECT_EQ(table.column("red")[i], expected) << "vertex " << i;
+    EXPECT_EQ(table.column("green")[i], expected) << "vertex " << i;
+    EXPECT_EQ(table.column("blue")[i], expected) << "vertex " << i;
+  }
+  EXPECT_EQ(table.column("red").front(), 0.0);
+  EXPECT_EQ(table.column("red").back(), 255.0);
+}
+
+TEST_F(PlyIo, AsciiRoundTripKeepsIntensityAndGrey) {
+  const core::PointCloud cloud = example_cloud();
+  write_ply(path("a.ply"), cloud, {.binary = false, .comments = {}});
+  const PlyTable table = read_ply_table(path("a.ply"));
+  const core::PointCloud back = read_ply(path("a.ply"));
+  ASSERT_EQ(back.intensity.size(), cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    EXPECT_EQ(back.intensity[i], cloud.intensity[i]);
+    EXPECT_EQ(back.view_id[i], cloud.view_id[i]);
+    EXPECT_EQ(table.column("green")[i], std::clamp(std::round(255.0 * cloud.intensity[i]), 0.0, 255.0));
+  }
+}
+
+TEST_F(PlyIo, CloudWithoutIntensityHasNoColourProperties) {
+  core::PointCloud cloud = example_cloud();
+  cloud.intensity.clear();
+  write_ply(path("a.ply"), cloud);
+  const PlyTable table = read_ply_table(path("a.ply"));
+  EXPECT_LT(table.find("intensity"), 0);
+  EXPECT_LT(table.find("red"), 0);
+  EXPECT_TRUE(read_ply(path("a.ply")).intensity.empty());
+}
+
+TEST_F(PlyIo, MeshPlyCarriesVertexIntensity) {
+  const std::vector<Eigen::Vector3f> vertices{{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  const std::vector<Eigen::Vector3f> normals(4, Eigen::Vector3f(0, 0, 1));
+  const std::vector<Eigen::Vector3i> triangles{{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  const std::vector<float> intensity{0.0f, 0.25f, 0.5f, 1.0f};
+  write_mesh_ply(path("m.ply"), vertices, normals, triangles, {}, {0, 0, 1, 0}, intensity);
+  const PlyTable table = read_ply_table(path("m.ply"));
+  ASSERT_EQ(table.vertex_count, 4u);
+  ASSERT_EQ(table.faces.size(), 4u);
+  for (std::size_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(table.column("intensity")[i], intensity[i]);
+    EXPECT_EQ(table.column("red")[i], std::round(255.0 * intensity[i]));
+    EXPECT_EQ(table.column("x")[i], vertices[i].x());
+  }
+  EXPECT_THROW(write_mesh_ply(path("bad.ply"), vertices, normals, triangles, {}, {}, {0.5f}), IoError);
+  EXPECT_FALSE(std::filesystem::exists(path("bad.ply")));
 }
 
 TEST_F(PlyIo, AsciiRoundTripIsExactForFloats) {

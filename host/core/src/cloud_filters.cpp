@@ -18,11 +18,13 @@ namespace {
 void check_channels(const PointCloud& cloud, const char* who) {
   const auto n = cloud.size();
   auto bad = [&](std::size_t m) { return m != 0 && m != n; };
-  if (bad(cloud.normals.size()) || bad(cloud.confidence.size()) || bad(cloud.view_id.size()))
+  if (bad(cloud.normals.size()) || bad(cloud.confidence.size()) || bad(cloud.intensity.size()) ||
+      bad(cloud.view_id.size()))
     throw std::invalid_argument(
         std::string(who) + ": cloud of " + std::to_string(n) + " points has " + std::to_string(cloud.normals.size()) +
-        " normals, " + std::to_string(cloud.confidence.size()) + " confidences and " +
-        std::to_string(cloud.view_id.size()) + " view ids (each must be 0 or " + std::to_string(n) + ")");
+        " normals, " + std::to_string(cloud.confidence.size()) + " confidences, " +
+        std::to_string(cloud.intensity.size()) + " intensities and " + std::to_string(cloud.view_id.size()) +
+        " view ids (each must be 0 or " + std::to_string(n) + ")");
   for (std::size_t i = 0; i < n; ++i)
     if (!cloud.points[i].allFinite())
       throw std::invalid_argument(std::string(who) + ": point " + std::to_string(i) + " is not finite");
@@ -55,12 +57,15 @@ PointCloud to_point_cloud(const OrganizedCloud& cloud, std::uint16_t view_id,
   const std::size_t n = cloud.count_valid();
   out.points.reserve(n);
   out.confidence.reserve(n);
+  const bool with_intensity = cloud.intensity.size() == cloud.points.size();
+  if (with_intensity) out.intensity.reserve(n);
   if (normals) out.normals.reserve(n);
   for (std::size_t i = 0; i < cloud.points.size(); ++i) {
     if (!cloud.valid[i] || !cloud.points[i].allFinite()) continue;
     if (normals && !(*normals)[i].allFinite()) continue;
     out.points.push_back(cloud.points[i]);
     out.confidence.push_back(cloud.quality[i]);
+    if (with_intensity) out.intensity.push_back(cloud.intensity[i]);
     if (normals) out.normals.push_back((*normals)[i]);
   }
   out.view_id.assign(out.points.size(), view_id);
@@ -254,12 +259,13 @@ PointCloud voxel_downsample(const PointCloud& cloud, double voxel_mm) {
   out.points.resize(m);
   if (cloud.has_normals()) out.normals.resize(m);
   if (!cloud.confidence.empty()) out.confidence.resize(m);
+  if (!cloud.intensity.empty()) out.intensity.resize(m);
   if (!cloud.view_id.empty()) out.view_id.resize(m);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, m, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
     for (std::size_t v = r.begin(); v < r.end(); ++v) {
       Eigen::Vector3d sum = Eigen::Vector3d::Zero();
       Eigen::Vector3f normal = Eigen::Vector3f::Zero();
-      double confidence = 0;
+      double confidence = 0, intensity = 0;
       float best_confidence = -std::numeric_limits<float>::infinity();
       std::uint16_t view = 0;
       for (std::size_t j = starts[v]; j < starts[v + 1]; ++j) {
@@ -268,6 +274,7 @@ PointCloud voxel_downsample(const PointCloud& cloud, double voxel_mm) {
         if (cloud.has_normals()) normal += cloud.normals[i];
         const float c = cloud.confidence.empty() ? 0.0f : cloud.confidence[i];
         confidence += c;
+        if (!cloud.intensity.empty()) intensity += cloud.intensity[i];
         if (!cloud.view_id.empty() && c > best_confidence) {
           best_confidence = c;
           view = cloud.view_id[i];
@@ -280,6 +287,7 @@ PointCloud voxel_downsample(const PointCloud& cloud, double voxel_mm) {
         out.normals[v] = len > 0 ? Eigen::Vector3f(normal / len) : cloud.normals[keyed[starts[v]].second];
       }
       if (!cloud.confidence.empty()) out.confidence[v] = static_cast<float>(confidence / count);
+      if (!cloud.intensity.empty()) out.intensity[v] = static_cast<float>(intensity / count);
       if (!cloud.view_id.empty()) out.view_id[v] = view;
     }
   });

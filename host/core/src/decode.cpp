@@ -303,6 +303,7 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
       slstudio ? gray_step - 1.0f : 0.0f,
       2.0f * std::numbers::pi_v<float> * (1.0f - 0.5f / static_cast<float>(config.period_px))};
   const std::size_t code_bits = gray_.size() + (with_complementary ? 1 : 0);
+  const float inverse_full_scale = 1.0f / static_cast<float>((1 << options_.bit_depth) - 1);
 
   TileSums t;
   alignas(64) Pixel max_value[kTileColumns];
@@ -461,6 +462,36 @@ void ProjectorViewDecoder::decode_rows(int row_begin, int row_end, DecodedView& 
         }
       }
 
+      // The albedo channel (decode.hpp): ambient removed, as a fraction of the full scale.
+      {
+        float* __restrict intensity = out.intensity.data() + offset;
+        if (with_white_black) {
+          const Pixel* __restrict white = tile_of(white_);
+          const Pixel* __restrict black = tile_of(black_);
+          for (int x = 0; x < n; ++x) {
+            const float d = (static_cast<float>(white[x]) - static_cast<float>(black[x])) * inverse_full_scale;
+            intensity[x] = d > 0.0f ? d : 0.0f;
+          }
+        } else if (with_phase) {
+          const float peak_to_peak = 2.0f * 2.0f / static_cast<float>(steps) * inverse_full_scale;
+          for (int x = 0; x < n; ++x)
+            intensity[x] = peak_to_peak * std::sqrt(sum_sin[x] * sum_sin[x] + sum_cos[x] * sum_cos[x]);
+        } else {
+          std::fill(intensity, intensity + n, 0.0f);
+          auto widest = [&](int pattern, int inverse) {
+            const Pixel* __restrict in = tile_of(pattern);
+            const Pixel* __restrict inv = tile_of(inverse);
+            for (int x = 0; x < n; ++x) {
+              const float d = std::fabs(static_cast<float>(in[x]) - static_cast<float>(inv[x]));
+              intensity[x] = intensity[x] > d ? intensity[x] : d;
+            }
+          };
+          for (std::size_t bit = 0; bit < gray_.size(); ++bit) widest(gray_[bit], gray_inverse_[bit]);
+          if (with_complementary) widest(complementary_, complementary_inverse_);
+          for (int x = 0; x < n; ++x) intensity[x] *= inverse_full_scale;
+        }
+      }
+
       float* coordinate = out.coordinate.data() + offset;
       float* quality = out.quality.data() + offset;
       DecodeMask* mask = out.mask.data() + offset;
@@ -491,6 +522,7 @@ void ProjectorViewDecoder::finish(DecodedView& out) {
   out.axis = plan_.config().axis;
   out.coordinate.resize(n);
   out.quality.resize(n);
+  out.intensity.resize(n);
   out.mask.resize(n);
   tbb::combinable<DecodeCounts> counts_by_thread;
   tbb::parallel_for(tbb::blocked_range<int>(0, height_, options_.rows_per_task), [&](const tbb::blocked_range<int>& r) {

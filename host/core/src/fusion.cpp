@@ -47,6 +47,10 @@ FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& r
                                 std::to_string(right.height));
   FusionResult result;
   result.cloud.resize(left.width, left.height);
+  // The albedo is fused when both sides carry it (a missing projector's empty grid does).
+  const std::size_t size = left.points.size();
+  const bool with_intensity = left.intensity.size() == size && right.intensity.size() == size;
+  if (!with_intensity) result.cloud.intensity.clear();
   const float tolerance2 = options.agreement_mm * options.agreement_mm;
   tbb::combinable<FusionCounts> counts_by_thread;
   const auto width = static_cast<std::size_t>(left.width);
@@ -64,6 +68,8 @@ FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& r
             const float ql = std::max(left.quality[i], 1e-6f), qr = std::max(right.quality[i], 1e-6f);
             out.points[i] = (ql * left.points[i] + qr * right.points[i]) / (ql + qr);
             out.quality[i] = ql + qr;
+            // The albedo with the points' weights: one rule for every fused channel.
+            if (with_intensity) out.intensity[i] = (ql * left.intensity[i] + qr * right.intensity[i]) / (ql + qr);
             out.valid[i] = 1;
             ++counts.both;
           } else {
@@ -73,6 +79,7 @@ FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& r
           const OrganizedCloud& source = l ? left : right;
           out.points[i] = source.points[i];
           out.quality[i] = source.quality[i];
+          if (with_intensity) out.intensity[i] = source.intensity[i];
           out.valid[i] = 1;
           ++(l ? counts.left_only : counts.right_only);
         }

@@ -11,6 +11,7 @@ void OrganizedCloud::resize(int w, int h) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
   points.assign(n, Eigen::Vector3f(nan, nan, nan));
   quality.assign(n, 0.0f);
+  intensity.assign(n, 0.0f);
   valid.assign(n, 0);
 }
 
@@ -32,6 +33,10 @@ PointCloud PointCloud::select(const std::vector<std::size_t>& indices) const {
     out.confidence.reserve(indices.size());
     for (auto i : indices) out.confidence.push_back(confidence[i]);
   }
+  if (!intensity.empty()) {
+    out.intensity.reserve(indices.size());
+    for (auto i : indices) out.intensity.push_back(intensity[i]);
+  }
   if (!view_id.empty()) {
     out.view_id.reserve(indices.size());
     for (auto i : indices) out.view_id.push_back(view_id[i]);
@@ -51,6 +56,7 @@ void PointCloud::append(const PointCloud& other) {
   };
   join(normals, other.normals, Eigen::Vector3f::Zero().eval());
   join(confidence, other.confidence, 0.0f);
+  join(intensity, other.intensity, 0.0f);
   join(view_id, other.view_id, std::uint16_t{0});
   points.insert(points.end(), other.points.begin(), other.points.end());
 }

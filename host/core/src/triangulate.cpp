@@ -287,6 +287,12 @@ TriangulateCounts ProjectorTriangulator::triangulate(const DecodedView& decoded,
   out.points.resize(n);
   out.quality.resize(n);
   out.valid.resize(n);
+  // The albedo rides along where the decoder gave one (0 where the point is invalid).
+  const bool with_intensity = decoded.intensity.size() == n;
+  if (with_intensity)
+    out.intensity.resize(n);
+  else
+    out.intensity.clear();
   tbb::combinable<TriangulateCounts> counts_by_thread;
   const int width = decoded.width;
   const bool columns = axis_ == slproto::CodingAxis::columns;
@@ -308,6 +314,12 @@ TriangulateCounts ProjectorTriangulator::triangulate(const DecodedView& decoded,
         else
           solve_tile<false>(tile, ray_x, ray_y, coord, quality, out.points.data() + i, out.quality.data() + i,
                             out.valid.data() + i, outcome);
+        if (with_intensity) {
+          const float* __restrict in = decoded.intensity.data() + i;
+          float* __restrict albedo = out.intensity.data() + i;
+          const std::uint8_t* __restrict ok = out.valid.data() + i;
+          for (int k = 0; k < tile; ++k) albedo[k] = ok[k] != 0 ? in[k] : 0.0f;
+        }
         // One compare-and-add pass per reason (vectorised) instead of a switch per pixel.
         auto tally = [&](Outcome reason) {
           std::uint32_t c = 0;  // 32-bit: the compare-and-add vectorises without widening to 64

@@ -84,6 +84,28 @@ class Tree {
     std::size_t size() const { return 2; }
   };
 
+  // The Gaussian-weighted mean of a per-point value within 3 sigma, in the tree's fixed order.
+  struct WeightedMean {
+    using DistanceType = float;
+    using IndexType = std::uint32_t;
+    WeightedMean(const std::vector<float>& v, double sigma)
+        : values(v), radius2(static_cast<float>(9 * sigma * sigma)), inv_two_sigma2(1 / (2 * sigma * sigma)) {}
+    const std::vector<float>& values;
+    float radius2;
+    double inv_two_sigma2;
+    double weight = 0, sum = 0;
+    bool addPoint(float d2, std::uint32_t i) {
+      if (d2 >= radius2) return true;
+      const double w = std::exp(-static_cast<double>(d2) * inv_two_sigma2);
+      weight += w;
+      sum += w * static_cast<double>(values[i]);
+      return true;
+    }
+    float worstDist() const { return radius2; }
+    bool full() const { return true; }
+    std::size_t size() const { return 0; }
+  };
+
   struct Count {
     using DistanceType = float;
     using IndexType = std::uint32_t;
@@ -316,6 +338,8 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   // (3 sigma) still covers the band of voxels evaluated around the points (2 cells).
   const double sigma = options.kernel_factor * std::max(spacing, cell / 2);
   std::vector<Eigen::Vector3f> points, normals;
+  const bool with_intensity = cloud.intensity.size() == cloud.size();
+  std::vector<float> intensity;  // of the points kept, when the cloud has it
   {
     const auto radius2 = static_cast<float>(9 * sigma * sigma);
     std::vector<std::uint8_t> keep(cloud.size(), 0);
@@ -332,6 +356,7 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
       if (keep[i]) {
         points.push_back(cloud.points[i]);
         normals.push_back(cloud.normals[i].normalized());
+        if (with_intensity) intensity.push_back(cloud.intensity[i]);
       }
   }
   all.reset();
@@ -523,6 +548,25 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   if (mesh.triangles.empty())
     throw std::invalid_argument("mesh: no surface left after trimming (" + std::to_string(points.size()) +
                                 " points, cell " + std::to_string(cell) + " mm)");
+  // 7. The albedo onto the final vertices (filled patches included): the points' Gaussian-weighted
+  // mean over the fit's kernel, the nearest point's where none is within its support. Each vertex
+  // is one serial sum in the tree's fixed order: deterministic on any thread count.
+  if (with_intensity) {
+    mesh.intensity.assign(mesh.vertices.size(), 0.0f);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mesh.vertices.size(), 1024), [&](const auto& r) {
+      for (std::size_t i = r.begin(); i < r.end(); ++i) {
+        Tree::WeightedMean mean(intensity, sigma);
+        implicit.tree().search(mean, mesh.vertices[i]);
+        if (mean.weight > 1e-9) {
+          mesh.intensity[i] = static_cast<float>(mean.sum / mean.weight);
+        } else {
+          float d2 = 0;
+          const std::int64_t k = implicit.tree().nearest(mesh.vertices[i], 1e18f, d2);
+          if (k >= 0) mesh.intensity[i] = intensity[static_cast<std::size_t>(k)];
+        }
+      }
+    });
+  }
   stats.closed = core::mesh_topology(mesh).closed();
   stats.mesh_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   return result;

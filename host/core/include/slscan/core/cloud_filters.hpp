@@ -12,8 +12,8 @@
 namespace slscan::core {
 
 // The valid slots of an organised cloud as an unorganised cloud (row-major order), with
-// confidence = quality and view id = `view_id`. If `normals` is given (one per slot, e.g. from
-// grid_normals) the slots whose normal is not finite are dropped and normals are kept.
+// confidence = quality, intensity = intensity (when the grid has it) and view id = `view_id`. If `normals` is given
+// (one per slot, e.g. from grid_normals) the slots whose normal is not finite are dropped and normals are kept.
 PointCloud to_point_cloud(const OrganizedCloud& cloud, std::uint16_t view_id,
                           const std::vector<Eigen::Vector3f>* normals = nullptr);
 
@@ -60,7 +60,7 @@ struct RadiusOutlierOptions {
 FilterResult radius_outlier_removal(const PointCloud& cloud, const RadiusOutlierOptions& options = {});
 
 // One point per occupied voxel (edge `voxel_mm`, grid anchored at the origin): the centroid of
-// its points; normals averaged and renormalised, confidence averaged, view id of the most
+// its points; normals averaged and renormalised, confidence and intensity averaged, view id of the most
 // confident point. Output ordered by voxel key (deterministic).
 PointCloud voxel_downsample(const PointCloud& cloud, double voxel_mm);
 

@@ -110,6 +110,11 @@ struct DecodedView {
   slproto::CodingAxis axis = slproto::CodingAxis::columns;
   std::vector<float> coordinate;  // projector coordinate along the axis (px); NaN where masked
   std::vector<float> quality;     // phase modulation B (DN), or Gray contrast without phase; 0 masked
+  // The surface's albedo as the camera saw it, every pixel (masked ones too): white - black as a
+  // fraction of the full scale 2^bit_depth - 1 (ambient removed), clamped to >= 0; without
+  // white/black frames the phase peak-to-peak 2 B, without phase either the largest
+  // |Gray frame - inverse| over the code bits (docs/pipeline.md).
+  std::vector<float> intensity;
   std::vector<DecodeMask> mask;
   DecodeCounts counts;
   DecodeChecks checks;                   // with DecodeOptions::self_check

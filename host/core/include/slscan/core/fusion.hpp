@@ -22,7 +22,9 @@ struct FusionCounts {
 };
 
 struct FusionResult {
-  OrganizedCloud cloud;  // quality = sum of the contributing qualities
+  // quality = sum of the contributing qualities; intensity (when both sides have it) the
+  // quality-weighted mean, like the point
+  OrganizedCloud cloud;
   FusionCounts counts;
 };
 

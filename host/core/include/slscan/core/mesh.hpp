@@ -18,6 +18,10 @@ struct TriangleMesh {
   std::vector<Eigen::Vector3f> normals;                 // per vertex, unit, outward
   std::vector<std::array<std::uint32_t, 3>> triangles;  // counter-clockwise seen from outside
   std::vector<std::uint8_t> filled;                     // per triangle, 1 = invented to close a hole (empty: none)
+  // Per vertex: the albedo of the points around it (PointCloud::intensity, Gaussian-weighted over
+  // the mesher's kernel; the nearest point's beyond it, e.g. on a filled patch). Empty: the cloud
+  // had none.
+  std::vector<float> intensity;
 };
 
 // The mesher (slscan_mesh, host/mesh: an OpenVDB level set of the points' implicit surface,

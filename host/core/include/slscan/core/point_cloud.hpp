@@ -12,7 +12,10 @@ namespace slscan::core {
 struct OrganizedCloud {
   int width = 0, height = 0;
   std::vector<Eigen::Vector3f> points;
-  std::vector<float> quality;       // decode modulation or fused confidence; 0 where invalid
+  std::vector<float> quality;  // decode modulation or fused confidence; 0 where invalid
+  // Albedo (DecodedView::intensity: white - black as a fraction of full scale); empty: none.
+  // Meaningful where valid.
+  std::vector<float> intensity;
   std::vector<std::uint8_t> valid;  // 1 = the point is measured
 
   void resize(int w, int h);
@@ -24,7 +27,8 @@ struct OrganizedCloud {
 struct PointCloud {
   std::vector<Eigen::Vector3f> points;
   std::vector<Eigen::Vector3f> normals;
-  std::vector<float> confidence;
+  std::vector<float> confidence;  // the decode modulation B (DN), summed over fused projectors
+  std::vector<float> intensity;   // albedo, 0..1 of the camera's full scale (OrganizedCloud::intensity)
   std::vector<std::uint16_t> view_id;
 
   std::size_t size() const { return points.size(); }

@@ -32,7 +32,7 @@ struct PlyTable {
 
 PlyTable read_ply_table(const std::string& path);
 
-// Reads x, y, z and, when present, nx/ny/nz, confidence and view_id.
+// Reads x, y, z and, when present, nx/ny/nz, confidence, intensity and view_id.
 core::PointCloud read_ply(const std::string& path);
 
 struct PlyWriteOptions {
@@ -41,15 +41,19 @@ struct PlyWriteOptions {
 };
 
 // Writes x, y, z (float) and the cloud's optional channels: nx, ny, nz (float),
-// confidence (float), view_id (ushort).
+// confidence (float: the decode modulation, the per-point quality), intensity (float, albedo
+// 0..1), view_id (ushort), and with intensity red, green, blue (uchar, all round(255 x
+// intensity) clamped: the grey that MeshLab and CloudCompare show).
 void write_ply(const std::string& path, const core::PointCloud& cloud, const PlyWriteOptions& options = {});
 
 // Writes a triangle mesh: vertices (with normals when given) and faces; `face_filled`, when not
 // empty, one flag per face written as the face property `uchar filled` (1: invented to close a
-// hole, docs/mesh.md).
+// hole, docs/mesh.md); `intensity`, when not empty, one albedo per vertex written as
+// `float intensity` and its grey `uchar red, green, blue` (as write_ply).
 void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
                     const std::vector<Eigen::Vector3f>& normals, const std::vector<Eigen::Vector3i>& triangles,
-                    const PlyWriteOptions& options = {}, const std::vector<std::uint8_t>& face_filled = {});
+                    const PlyWriteOptions& options = {}, const std::vector<std::uint8_t>& face_filled = {},
+                    const std::vector<float>& intensity = {});
 
 // Binary STL of a triangle mesh (facet normals computed from the triangles).
 void write_stl(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
