@@ -21,7 +21,10 @@ struct CheckerboardTarget {
   int inner_x() const { return squares_x - 1; }
   int inner_y() const { return squares_y - 1; }
   int corner_count() const { return inner_x() * inner_y(); }
-  Eigen::Vector3d corner(int id) const { return {(id % inner_x()) * square_mm, (id / inner_x()) * square_mm, 0.0}; }
+  Eigen::Vector3d corner(int id) const {
+    const int column = id % inner_x(), row = id / inner_x();  // integer division: the grid index
+    return {column * square_mm, row * square_mm, 0.0};
+  }
   Eigen::Vector3d centre() const { return {0.5 * (inner_x() - 1) * square_mm, 0.5 * (inner_y() - 1) * square_mm, 0.0}; }
   // With an odd number of squares both ways the board looks the same turned by 180 degrees,
   // so a detector cannot tell which corner is first; calibration then resolves it (turntable)
