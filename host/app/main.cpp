@@ -4,6 +4,9 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
 #include <filesystem>
 #include <iostream>
 #include <new>
@@ -19,6 +22,7 @@
 #include "slproto/messages.hpp"
 #include "slscan/io/ply.hpp"
 #include "status.hpp"
+#include "worker_threads.hpp"
 
 namespace {
 
@@ -534,18 +538,74 @@ static int run_command_line(int argc, char** argv) {
               << " (" << e.what() << ")\n";
     return exit_bad_input;
   } catch (const std::exception& e) {
+    if (is_thread_start_failure(e)) {
+      mark_worker_threads_unreliable();
+      std::cerr << "slscan: out of memory: a thread could not be started (" << e.what() << "; " << memory_situation()
+                << ")\n";
+      return exit_resources;
+    }
     std::cerr << "slscan: internal error: " << e.what() << "\n";
     return exit_internal;
   }
   return exit_usage;
 }
 
+static std::terminate_handler default_terminate = nullptr;
+
+// A thread that could not be started on a thread of a library (TBB starting one worker from
+// another) ends in std::terminate: reported as out of memory (exit 9), not as an abort.
+[[noreturn]] static void on_terminate() {
+  if (const std::exception_ptr current = std::current_exception()) {
+    try {
+      std::rethrow_exception(current);
+    } catch (const std::exception& e) {
+      if (is_thread_start_failure(e)) {
+        std::cerr << "slscan: out of memory: a thread could not be started (" << e.what() << "; " << memory_situation()
+                  << ")\n";
+        std::cerr.flush();
+        std::_Exit(exit_resources);
+      }
+    } catch (...) {
+    }
+  }
+  if (default_terminate != nullptr) default_terminate();
+  std::abort();
+}
+
+static void start_threads_or_warn() noexcept {
+  try {
+    const WorkerThreads threads = start_worker_threads();
+    if (threads.start_failed)
+      std::cerr << "slscan: warning: only 1 of " << threads.wanted << " threads could be started (" << threads.failure
+                << "; " << memory_situation() << "); running on one thread\n";
+  } catch (...) {
+    // Out of memory before the command: it will say so itself, as the first thing it needs fails.
+    mark_worker_threads_unreliable();
+  }
+}
+
 // TBB's worker threads (ours and OpenCV's) are joined before the process exits instead of being
 // torn down by static destructors: a thread still exiting while LeakSanitizer stops the world
 // makes its tracer crash ("Tracer caught signal 11", google/sanitizers#1353), which failed CI.
+//
+// Every worker is started before the command runs (worker_threads.hpp): when the address space
+// has no room for them the command runs on one thread, and the process does not wait for a
+// half-started worker at exit.
 int main(int argc, char** argv) {
-  tbb::task_scheduler_handle workers{tbb::attach{}};
-  const int code = run_command_line(argc, argv);
-  (void)tbb::finalize(workers, std::nothrow);
-  return code;
+  default_terminate = std::set_terminate(on_terminate);
+  try {
+    tbb::task_scheduler_handle workers{tbb::attach{}};
+    start_threads_or_warn();
+    const int code = run_command_line(argc, argv);
+    if (worker_threads_unreliable()) {
+      std::fflush(nullptr);  // std::cout and std::cerr are synced with stdio: this flushes them too
+      std::_Exit(code);
+    }
+    (void)tbb::finalize(workers, std::nothrow);
+    return code;
+  } catch (...) {
+    // run_command_line turns every std::exception into its message; this is anything else.
+    std::fputs("slscan: internal error: an exception of unknown type\n", stderr);
+    return exit_internal;
+  }
 }
