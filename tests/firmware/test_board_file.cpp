@@ -164,6 +164,12 @@ TEST(BoardFile, WrongTypesAndUnknownKeysAreNamed) {
   EXPECT_NE(error_of(sim_with("pixel_format", "pixel_format = \"rgb24\"")).find("unknown pixel format 'rgb24'"),
             std::string::npos);
   EXPECT_NE(error_of(sim_with("trig_in_1 = 17", "trig_in_1 = -3")).find("must not be negative"), std::string::npos);
+  EXPECT_NE(error_of(sim_with("projector_latency_us", "projector_latency_us = -1")).find("timing.projector_latency_us"),
+            std::string::npos);
+  // The projectors' latency is a [timing] figure of every board, no longer a [sim] one.
+  EXPECT_NE(error_of(sim_with("camera_latency_us", "camera_latency_us = 5\nprojector_latency_us = 15"))
+                .find("unknown field 'sim.projector_latency_us'"),
+            std::string::npos);
 }
 
 TEST(BoardFile, SyntaxErrorHasLineNumber) {

@@ -136,6 +136,18 @@ TEST(ScanPlan, AcceptsWhatTheBoardCanDoAndRefusesTheRestWithAReason) {
   r = good_request();
   r.set_pattern_period_us(2500);  // exposure 2000 + read-out 1500 do not fit
   refused(r, "shorter than trigger delay + exposure + read-out");
+  // The projectors' trigger latency belongs in the period on every board, not only the sim's:
+  // exposure 2000 + read-out 1500 + latency 15 fit 3515 us, and not 3514.
+  r = good_request();
+  r.set_pattern_period_us(3515);
+  EXPECT_TRUE(make_scan_plan(r, *board, camera).ok());
+  r.set_pattern_period_us(3514);
+  refused(r, "shorter than trigger delay + exposure + read-out");
+  hal::BoardConfig real_board = *board;
+  real_board.gpio_backend = "gpiod";
+  real_board.projector_latency_us = 500;
+  r.set_pattern_period_us(3515);
+  EXPECT_FALSE(make_scan_plan(r, real_board, camera).ok()) << "latency 500 us left out of a gpiod board's period";
   r = good_request();
   r.set_trigger_delay_us(100);
   refused(r, "trigger_delay_us must be 0");

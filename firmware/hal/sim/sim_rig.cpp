@@ -238,7 +238,7 @@ void SimRig::Core::on_trigger_in_1(int side, Nanos now) {
   const std::size_t count = plan ? plan->size() : slproto::PatternPlan(scene.pattern_plan).size();
   const int pattern = static_cast<int>(static_cast<std::size_t>(d.index) % count);  // the sequence loops
   const std::uint64_t generation = d.generation;
-  const Nanos show = now + static_cast<Nanos>(board.sim_projector_latency_us * kMicro);
+  const Nanos show = now + static_cast<Nanos>(board.projector_latency_us * kMicro);
   schedule(show, [this, side, generation, pattern](Nanos t) {
     Dlp& p = dlp[side];
     if (p.generation != generation) return;

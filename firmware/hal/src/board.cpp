@@ -257,6 +257,8 @@ slproto::Status BoardConfig::check() const {
   if (!(pattern_exposure_us > 0)) return fail("timing.pattern_exposure_us must be positive");
   if (pattern_exposure_us < 235) return fail("timing.pattern_exposure_us below the DLP4500's 235 us minimum");
   if (!(readout_us >= 0)) return fail("camera.readout_us must not be negative");
+  if (!(projector_latency_us >= 0 && projector_latency_us <= 1e6))
+    return fail("timing.projector_latency_us must be within 0 to 1e6 us (one second)");
   if (!(pattern_period_us > pattern_exposure_us + readout_us)) {
     return fail("timing.pattern_period_us (" + std::to_string(pattern_period_us) +
                 ") must exceed timing.pattern_exposure_us + camera.readout_us (" +
@@ -302,8 +304,8 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.only_keys("camera",
               {"backend", "device", "width", "height", "pixel_format", "gain", "trigger", "trigger_line", "readout_us",
                "trigger_input", "trigger_activation", "offset_x", "offset_y", "packet_size", "buffers"});
-  r.only_keys("timing", {"pattern_exposure_us", "pattern_period_us", "settle_ms", "ack_timeout_ms", "frame_timeout_ms",
-                         "move_timeout_s"});
+  r.only_keys("timing", {"pattern_exposure_us", "pattern_period_us", "projector_latency_us", "settle_ms",
+                         "ack_timeout_ms", "frame_timeout_ms", "move_timeout_s"});
   r.only_keys("turntable", {"backend", "serial", "port", "baud", "feed_deg_per_min", "angle_tolerance_deg"});
   r.only_keys("realtime", {"enabled", "priority", "cpu"});
   r.only_keys("timing_budget",
@@ -311,7 +313,7 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
                "trigger_to_exposure_max_us", "exposure_error_max_us", "frame_delivery_p99_us", "frame_delivery_max_us",
                "move_settle_max_ms", "scan_time_ratio_max", "observer_tolerance_us"});
   r.only_keys("observer", {"chip", "left_trig_in_1", "left_trig_out_1", "right_trig_in_1", "right_trig_out_1"});
-  r.only_keys("sim", {"scene", "rig_size", "projector_latency_us", "camera_latency_us"});
+  r.only_keys("sim", {"scene", "rig_size", "camera_latency_us"});
 
   r.required("board.name", b.name);
   r.optional("board.description", b.description);
@@ -373,6 +375,7 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.optional("camera.packet_size", b.camera_packet_size);
   r.optional("camera.buffers", b.camera_buffers);
   r.required("timing.pattern_exposure_us", b.pattern_exposure_us);
+  r.optional("timing.projector_latency_us", b.projector_latency_us);
   r.required("timing.pattern_period_us", b.pattern_period_us);
   r.optional("timing.settle_ms", b.settle_ms);
   r.optional("timing.ack_timeout_ms", b.ack_timeout_ms);
@@ -389,7 +392,6 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.optional("realtime.cpu", b.cpu);
   r.optional("sim.scene", b.sim_scene);
   r.optional("sim.rig_size", b.sim_rig_size);
-  r.optional("sim.projector_latency_us", b.sim_projector_latency_us);
   r.optional("sim.camera_latency_us", b.sim_camera_latency_us);
   TimingBudget& t = b.budget;
   for (const auto& [key, field] : {std::pair{"period_mean_error_us", &t.period_mean_error_us},

@@ -70,8 +70,8 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
                                          " patterns; the projectors hold 32 8-bit patterns");
   }
   const double readout_us = board.readout_us;
-  const double needed_us = static_cast<double>(request.trigger_delay_us()) + request.exposure_us() + readout_us +
-                           board.sim_projector_latency_us * (board.is_sim() ? 1 : 0);
+  const double needed_us =
+      static_cast<double>(request.trigger_delay_us()) + request.exposure_us() + readout_us + board.projector_latency_us;
   if (request.pattern_period_us() < needed_us) {
     return refuse(Errc::unsupported, "pattern_period_us " + std::to_string(request.pattern_period_us()) +
                                          " is shorter than trigger delay + exposure + read-out (" +

@@ -81,6 +81,9 @@ struct BoardConfig {
   // [timing]
   double pattern_exposure_us = 8333;
   double pattern_period_us = 16667;
+  // The projectors' TRIG_IN_1 -> TRIG_OUT_1 delay: a pattern period must hold it too (the
+  // scan plan's check). The sim's projectors lag by it; 0 where the board file does not state it.
+  double projector_latency_us = 0;
   double settle_ms = 200;
   double ack_timeout_ms = 20;
   double frame_timeout_ms = 500;
@@ -101,9 +104,8 @@ struct BoardConfig {
 
   // [sim] (sim backends only)
   std::string sim_scene = "sphere";
-  std::string sim_rig_size = "small";    // "small" (640 x 512) or "full"
-  double sim_projector_latency_us = 15;  // TRIG_IN_1 -> TRIG_OUT_1
-  double sim_camera_latency_us = 5;      // trigger edge -> exposure start
+  std::string sim_rig_size = "small";  // "small" (640 x 512) or "full"
+  double sim_camera_latency_us = 5;    // trigger edge -> exposure start
 
   // [timing_budget], [observer] (the HIL harness's; see TimingBudget)
   TimingBudget budget;
