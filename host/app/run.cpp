@@ -145,9 +145,8 @@ void print_summary(const Console& console, const core::ScanResult& result, const
   }
   console.info(std::to_string(result.views.size()) + " views, " + std::to_string(result.model.size()) +
                " points (fusion: " + std::to_string(both) + " both, " + std::to_string(left) + " left only, " +
-               std::to_string(right) + " right only, " + std::to_string(rejected) + " rejected)" +
-               (result.meshed ? ", mesh " + std::to_string(result.mesh.mesh.triangles.size()) + " triangles" : "") +
-               " in " + seconds_text(seconds) + " -> " + files.model_ply);
+               std::to_string(right) + " right only, " + std::to_string(rejected) +
+               " rejected), reconstructed and written in " + seconds_text(seconds) + " -> " + files.model_ply);
   if (result.meshed) {
     char cell[32];
     std::snprintf(cell, sizeof cell, "%.3g", result.mesh.cell_mm);
