@@ -101,7 +101,7 @@ Result<pb::HelloReply> client_handshake(Connection& connection, const pb::Hello&
 }
 
 Result<pb::Hello> server_handshake(Connection& connection, const ServerIdentity& identity,
-                                   std::chrono::milliseconds timeout) {
+                                   std::chrono::milliseconds timeout, const std::function<Status()>& admit) {
   Result<pb::Hello> hello = connection.receive_as<pb::Hello>(timeout);
   if (!hello) return make_error(hello.error().code, "handshake: " + hello.error().message);
 
@@ -130,6 +130,8 @@ Result<pb::Hello> server_handshake(Connection& connection, const ServerIdentity&
   } else if (!hello->board_name().empty() && hello->board_name() != identity.board_name) {
     rejection = make_error(Errc::unsupported,
                            "this is board \"" + identity.board_name + "\", not \"" + hello->board_name() + "\"");
+  } else if (admit) {
+    if (Status admitted = admit(); !admitted) rejection = admitted.error();
   }
   if (rejection) {
     reply.set_accepted(false);

@@ -137,6 +137,43 @@ TEST(Transport, HandshakeRejectsWrongTokenAndVersion) {
   }
 }
 
+// The server's own admission (slscand's connection limit) refuses the hello before it is
+// accepted, with its error; it is asked only once the hello itself is acceptable.
+TEST(Transport, HandshakeAdmissionRefusesBeforeAccepting) {
+  {
+    Pair pair = connected_pair();
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "", {}};
+    int asked = 0;
+    auto server_side = std::async(std::launch::async, [&] {
+      return server_handshake(pair.board, identity, default_handshake_timeout, [&]() -> Status {
+        ++asked;
+        return make_error(Errc::busy, "busy: 2 connections (the limit)");
+      });
+    });
+    Result<pb::HelloReply> reply = client_handshake(pair.host, make_hello("h", "1"));
+    ASSERT_FALSE(reply.ok());
+    EXPECT_EQ(reply.error().code, Errc::busy);
+    EXPECT_THAT(reply.error().message, HasSubstr("2 connections (the limit)"));
+    EXPECT_EQ(server_side.get().error().code, Errc::busy);
+    EXPECT_EQ(asked, 1);
+  }
+  {
+    Pair pair = connected_pair();
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "right", {}};
+    int asked = 0;
+    auto server_side = std::async(std::launch::async, [&] {
+      return server_handshake(pair.board, identity, default_handshake_timeout, [&]() -> Status {
+        ++asked;
+        return {};
+      });
+    });
+    Result<pb::HelloReply> reply = client_handshake(pair.host, make_hello("h", "1", 0, "wrong"));
+    EXPECT_EQ(reply.error().code, Errc::unauthorized);
+    EXPECT_FALSE(server_side.get().ok());
+    EXPECT_EQ(asked, 0) << "a wrong token took an admission";
+  }
+}
+
 TEST(Transport, ReceiveTimeoutKeepsTheConnectionUsable) {
   Pair pair = connected_pair();
   const auto start = Clock::now();

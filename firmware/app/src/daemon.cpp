@@ -212,10 +212,22 @@ void Daemon::release_scanner() {
   primary_active_ = false;
 }
 
+void Daemon::release_admission() {
+  std::lock_guard lock(admission_mutex_);
+  if (admitted_connections_ > 0) --admitted_connections_;
+}
+
 void Daemon::serve_connection(slproto::Connection& connection, const std::function<void(bool passed)>& hello_done) {
   const std::uint32_t negotiated = handshake(connection);
   hello_done(negotiated != 0);
   if (negotiated == 0) return;
+  struct Admission {
+    explicit Admission(Daemon* owner) : daemon(owner) {}
+    ~Admission() { daemon->release_admission(); }
+    Admission(const Admission&) = delete;
+    Admission& operator=(const Admission&) = delete;
+    Daemon* daemon;
+  } const admission{this};
   const std::string peer = connection.peer_address();
   if (!try_claim_scanner(0ms, peer)) {
     // Another host has the scanner: status questions are answered at once. Only a scan request
@@ -251,7 +263,19 @@ std::uint32_t Daemon::handshake(slproto::Connection& connection) {
   identity.camera.set_model(devices_.camera->describe());
   identity.projector_count = 2;
   identity.auth_token = options_.auth_token;
-  auto hello = slproto::server_handshake(connection, identity, options_.handshake_timeout);
+  // The connection limit is checked as the hello is answered, not only at accept: a host
+  // accepted just before may not have been counted yet when this one was accepted.
+  bool admitted = false;
+  auto hello = slproto::server_handshake(connection, identity, options_.handshake_timeout, [&]() -> slproto::Status {
+    std::lock_guard lock(admission_mutex_);
+    if (admitted_connections_ >= options_.max_connections)
+      return make_error(Errc::busy, "busy: slscand already serves " + std::to_string(admitted_connections_) +
+                                        " connections (the limit); try again later");
+    ++admitted_connections_;
+    admitted = true;
+    return {};
+  });
+  if (!hello && admitted) release_admission();
   if (!hello) {
     std::fprintf(stderr, "slscand: %s\n", hello.error().message.c_str());
     std::lock_guard lock(stats_mutex_);

@@ -4,6 +4,8 @@
 #include <cstdio>
 #include <map>
 #include <set>
+
+#include "slproto/number_text.hpp"
 // Header-only and without exceptions: the firmware reports errors as values, and the board
 // build then needs only the headers in its sysroot.
 #define TOML_HEADER_ONLY 1
@@ -260,9 +262,9 @@ slproto::Status BoardConfig::check() const {
   if (!(projector_latency_us >= 0 && projector_latency_us <= 1e6))
     return fail("timing.projector_latency_us must be within 0 to 1e6 us (one second)");
   if (!(pattern_period_us > pattern_exposure_us + readout_us)) {
-    return fail("timing.pattern_period_us (" + std::to_string(pattern_period_us) +
+    return fail("timing.pattern_period_us (" + slproto::short_number(pattern_period_us) +
                 ") must exceed timing.pattern_exposure_us + camera.readout_us (" +
-                std::to_string(pattern_exposure_us + readout_us) + ")");
+                slproto::short_number(pattern_exposure_us + readout_us) + ")");
   }
   if (!(settle_ms >= 0)) return fail("timing.settle_ms must not be negative");
   if (!(ack_timeout_ms > 0) || !(frame_timeout_ms > 0) || !(move_timeout_s > 0)) {

@@ -5,6 +5,7 @@
 #include <optional>
 
 #include "slproto/calibration.hpp"
+#include "slproto/number_text.hpp"
 
 namespace slscand {
 
@@ -196,7 +197,7 @@ std::optional<Failure> ScanRun::move_to(std::size_t v, View& view) {
   view.index = static_cast<std::uint32_t>(v);
   view.commanded_deg = plan_.angles_deg[v];
   report(pb::SCAN_STATE_MOVING, view.index, view.commanded_deg,
-         "rotating to " + std::to_string(view.commanded_deg) + " deg");
+         "rotating to " + slproto::short_number(view.commanded_deg) + " deg");
   log(pb::TIMING_EVENT_TURNTABLE_MOVE_START, monotonic_now_ns());
   turntable_involved_ = true;
   auto reached = devices_.turntable->rotate_to(view.commanded_deg, move_timeout_, &abort_);

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -56,8 +57,11 @@ struct ServerIdentity {
 
 // Server side: waits for Hello, checks the version range and the token (constant-time
 // compare), answers. On acceptance returns the client's Hello; on rejection sends the reply
-// with the reason, closes the connection and returns the reason as the error.
+// with the reason, closes the connection and returns the reason as the error. `admit`, when
+// given, is asked last, before the accepting reply goes out: a server's own limits (e.g. the
+// connections it serves) refuse the hello with its error instead of accepting it first.
 Result<pb::Hello> server_handshake(Connection& connection, const ServerIdentity& identity,
-                                   std::chrono::milliseconds timeout = default_handshake_timeout);
+                                   std::chrono::milliseconds timeout = default_handshake_timeout,
+                                   const std::function<Status()>& admit = {});
 
 }  // namespace slproto

@@ -102,6 +102,7 @@ class Daemon {
   void release_scanner();
   // The hello exchange; the negotiated protocol version, 0 if the hello was refused.
   std::uint32_t handshake(slproto::Connection& connection);
+  void release_admission();  // a connection admitted by its hello has ended
   slproto::pb::StatusReply status_reply(std::uint32_t negotiated) const;
   std::uint64_t capabilities() const;
   std::string busy_reason() const;
@@ -118,6 +119,8 @@ class Daemon {
   std::atomic<bool> scanning_{false};
   mutable std::mutex stats_mutex_;
   DaemonStats stats_;
+  std::mutex admission_mutex_;
+  std::size_t admitted_connections_ = 0;  // past their hello, counted against max_connections
   std::string realtime_warning_;
   std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
   std::atomic<bool> primary_active_{false};
