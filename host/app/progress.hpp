@@ -8,6 +8,7 @@
 #include <optional>
 #include <string>
 
+#include "slproto/number_text.hpp"
 #include "slscan/session/session_log.hpp"
 
 namespace slscan::app {
@@ -19,9 +20,8 @@ std::string format_duration(double seconds);
 // "12.3 frames/s", "143 frames/s", "1235 frames/s", "0.520 poses/s".
 std::string format_rate(double per_second, const std::string& unit);
 
-// A number as given, for messages: up to six significant figures and no trailing zeros
-// ("0.5", "2", "1e-07", "-1"; not "0.500000").
-std::string short_number(double value);
+// A number as given, for messages ("0.5", not "0.500000"): slproto's, shared with the board.
+using slproto::short_number;
 
 // An instant in UTC as ISO 8601 with milliseconds: "2026-12-03T14:16:03.123Z" (--json-log).
 std::string utc_timestamp(std::chrono::system_clock::time_point when);

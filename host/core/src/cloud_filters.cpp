@@ -11,6 +11,7 @@
 #include <string>
 
 #include "cloud_filters_kdtree.hpp"
+#include "slproto/number_text.hpp"
 
 namespace slscan::core {
 namespace {
@@ -243,7 +244,7 @@ PointCloud voxel_downsample(const PointCloud& cloud, double voxel_mm) {
         const auto cell = static_cast<std::int64_t>(c[a]);
         if (cell > kMaxCell)
           throw std::invalid_argument("voxel_downsample: the cloud spans more than 2^21 voxels of " +
-                                      std::to_string(voxel_mm) + " mm along an axis");
+                                      slproto::short_number(voxel_mm) + " mm along an axis");
         key = (key << 21) | static_cast<std::uint64_t>(cell);
       }
       keyed[i] = {key, static_cast<std::uint32_t>(i)};

@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "slproto/number_text.hpp"
 #include "slscan/core/decode_math.hpp"
 #include "slscan/core/noise_estimate.hpp"
 
@@ -25,9 +26,9 @@ void DecodeOptions::check() const {
   if (bit_depth != 8 && bit_depth != 10 && bit_depth != 12 && bit_depth != 16)
     fail("bit_depth " + std::to_string(bit_depth) + " is not 8, 10, 12 or 16");
   if (!(min_contrast_dn >= 0) || !std::isfinite(min_contrast_dn))
-    fail("min_contrast_dn must be a finite value >= 0, got " + std::to_string(min_contrast_dn));
+    fail("min_contrast_dn must be a finite value >= 0, got " + slproto::short_number(min_contrast_dn));
   if (!(min_modulation_dn >= 0) || !std::isfinite(min_modulation_dn))
-    fail("min_modulation_dn must be a finite value >= 0, got " + std::to_string(min_modulation_dn));
+    fail("min_modulation_dn must be a finite value >= 0, got " + slproto::short_number(min_modulation_dn));
   if (saturation_dn < 0 || saturation_dn > (1 << bit_depth))
     fail("saturation_dn " + std::to_string(saturation_dn) + " outside [0 (the top code), " +
          std::to_string(1 << bit_depth) + " (full scale: never clipped)]");

@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "slproto/number_text.hpp"
+
 namespace slscan::core {
 
 namespace {
@@ -27,7 +29,7 @@ void check_cloud(const OrganizedCloud& cloud, const char* what) {
 void FusionOptions::check() const {
   if (!(agreement_mm > 0) || !std::isfinite(agreement_mm))
     throw std::invalid_argument("fusion options: agreement_mm must be positive and finite, got " +
-                                std::to_string(agreement_mm));
+                                slproto::short_number(agreement_mm));
 }
 
 void FlyingPixelOptions::check() const {

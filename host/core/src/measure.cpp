@@ -8,6 +8,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "slproto/number_text.hpp"
+
 namespace slscan::core {
 namespace {
 
@@ -158,8 +160,8 @@ struct SphereSearch {
       }
     }
     if (best_score == 0)
-      throw std::runtime_error(std::string("measure_ball_bar: no sphere of radius ") + std::to_string(nominal_radius) +
-                               " mm found for the " + which + " sphere");
+      throw std::runtime_error(std::string("measure_ball_bar: no sphere of radius ") +
+                               slproto::short_number(nominal_radius) + " mm found for the " + which + " sphere");
     // Refine: refit on the band around the current sphere until the inlier set settles.
     std::vector<std::uint32_t> inliers = within_band(best_centre, nominal_radius, options.ransac_band_mm);
     SphereFit fit;

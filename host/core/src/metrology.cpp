@@ -6,6 +6,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "slproto/number_text.hpp"
+
 namespace slscan::core {
 
 BallBarUncertainty ball_bar_uncertainty(std::span<const double> lengths_mm, const BallBarReference& reference) {
@@ -55,7 +57,7 @@ std::vector<std::uint32_t> keep_smallest(const std::vector<double>& residuals, s
 
 std::size_t excluded_count(std::size_t n, double fraction, const char* what) {
   if (!(fraction >= 0 && fraction <= 0.003))
-    throw std::invalid_argument(std::string(what) + ": exclude_fraction " + std::to_string(fraction) +
+    throw std::invalid_argument(std::string(what) + ": exclude_fraction " + slproto::short_number(fraction) +
                                 " is outside [0, 0.003] (VDI/VDE 2634-2 allows at most 0.3 %)");
   return static_cast<std::size_t>(std::floor(fraction * static_cast<double>(n)));
 }

@@ -15,6 +15,7 @@
 #include <string>
 
 #include "cloud_filters_kdtree.hpp"
+#include "slproto/number_text.hpp"
 
 namespace slscan::core {
 namespace {
@@ -183,7 +184,8 @@ class JointIcp {
       const auto corr = correspondences(s, t, gate, sources);
       if (corr.size() < 6)
         throw std::runtime_error("ICP: views " + std::to_string(s) + " and " + std::to_string(t) + " share only " +
-                                 std::to_string(corr.size()) + " correspondences within " + std::to_string(gate) +
+                                 std::to_string(corr.size()) + " correspondences within " +
+                                 slproto::short_number(gate) +
                                  " mm (too little overlap or too far from the coarse pose)");
       Eigen::Matrix<double, 12, 12> h = Eigen::Matrix<double, 12, 12>::Zero();
       Eigen::Matrix<double, 12, 1> gg = Eigen::Matrix<double, 12, 1>::Zero();

@@ -17,6 +17,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "slproto/number_text.hpp"
 #include "slscan/core/noise_estimate.hpp"
 
 namespace slscan::core {
@@ -25,12 +26,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// A number for a message, as given ("0.5", not "0.500000").
-std::string short_number(double value) {
-  char text[32];
-  std::snprintf(text, sizeof text, "%g", value);
-  return text;
-}
+using slproto::short_number;
 
 double ms_since(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
@@ -499,9 +495,9 @@ void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::by
     view.report.commanded_angle_deg = info.commanded_angle_deg;
     view.report.reported_angle_deg = info.reported_angle_deg;
   } else if (view.commanded_angle_deg != info.commanded_angle_deg) {
-    throw std::invalid_argument(where + ": commanded angle " + std::to_string(info.commanded_angle_deg) +
+    throw std::invalid_argument(where + ": commanded angle " + slproto::short_number(info.commanded_angle_deg) +
                                 " deg differs from the view's earlier frames (" +
-                                std::to_string(view.commanded_angle_deg) + " deg)");
+                                slproto::short_number(view.commanded_angle_deg) + " deg)");
   }
   const auto side = static_cast<std::size_t>(info.projector);
   if (view.triangulated[side].has_value() || view.report.projectors[side].present)

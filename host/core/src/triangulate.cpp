@@ -11,6 +11,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "slproto/number_text.hpp"
+
 namespace slscan::core {
 
 CameraRayTable CameraRayTable::build(const slproto::PinholeModel& camera) {
@@ -43,7 +45,8 @@ void TriangulateOptions::check() const {
   if (!(max_residual_px > 0) || !std::isfinite(max_residual_px)) fail("max_residual_px must be positive and finite");
   if (!(frustum_margin_px >= 0) || !std::isfinite(frustum_margin_px)) fail("frustum_margin_px must be >= 0 and finite");
   if (!(min_depth_mm >= 0) || !(max_depth_mm > min_depth_mm) || !std::isfinite(max_depth_mm))
-    fail("depth range [" + std::to_string(min_depth_mm) + ", " + std::to_string(max_depth_mm) + "] mm is empty");
+    fail("depth range [" + slproto::short_number(min_depth_mm) + ", " + slproto::short_number(max_depth_mm) +
+         "] mm is empty");
 }
 
 ProjectorTriangulator::ProjectorTriangulator(std::shared_ptr<const CameraRayTable> rays,

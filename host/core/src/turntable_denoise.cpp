@@ -9,6 +9,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "slproto/number_text.hpp"
+
 namespace slscan::core {
 
 void TurntableDenoiseOptions::check() const {
@@ -16,8 +18,8 @@ void TurntableDenoiseOptions::check() const {
   if (!std::isfinite(min_height_mm)) fail("min_height_mm is not finite");
   if (!(max_height_mm >= 0) || !std::isfinite(max_height_mm)) fail("max_height_mm must be >= 0 (0: no limit)");
   if (max_height_mm > 0 && max_height_mm <= min_height_mm)
-    fail("max_height_mm " + std::to_string(max_height_mm) + " is not above min_height_mm " +
-         std::to_string(min_height_mm));
+    fail("max_height_mm " + slproto::short_number(max_height_mm) + " is not above min_height_mm " +
+         slproto::short_number(min_height_mm));
   if (!(radius_mm >= 0) || !std::isfinite(radius_mm)) fail("radius_mm must be >= 0 (0: the calibration's radius)");
 }
 
@@ -47,7 +49,8 @@ struct Classifier {
         max_height(options.max_height_mm),
         radius(options.radius_mm > 0 ? options.radius_mm : turntable.platform_radius_mm) {
     if (!(radius > 0) || !std::isfinite(radius))
-      throw std::invalid_argument("turntable denoise: platform radius " + std::to_string(radius) + " is not positive");
+      throw std::invalid_argument("turntable denoise: platform radius " + slproto::short_number(radius) +
+                                  " is not positive");
   }
 
   Verdict operator()(const Eigen::Vector3f& point) const {

@@ -4,6 +4,7 @@
 #include <stdexcept>
 
 #include "pose_maths.hpp"
+#include "slproto/number_text.hpp"
 #include "slscan/core/calibration_solve.hpp"
 
 namespace slscan::core {
@@ -15,9 +16,11 @@ void CheckerboardTarget::check() const {
     throw std::invalid_argument("checkerboard target: " + std::to_string(squares_x) + " x " +
                                 std::to_string(squares_y) + " squares; each side needs 3..200");
   if (!(square_mm > 0) || !std::isfinite(square_mm))
-    throw std::invalid_argument("checkerboard target: square_mm must be positive, got " + std::to_string(square_mm));
+    throw std::invalid_argument("checkerboard target: square_mm must be positive, got " +
+                                slproto::short_number(square_mm));
   if (!(thickness_mm >= 0) || !std::isfinite(thickness_mm))
-    throw std::invalid_argument("checkerboard target: thickness_mm must be >= 0, got " + std::to_string(thickness_mm));
+    throw std::invalid_argument("checkerboard target: thickness_mm must be >= 0, got " +
+                                slproto::short_number(thickness_mm));
 }
 
 namespace calibration_detail {
