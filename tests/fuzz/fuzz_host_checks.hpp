@@ -36,7 +36,7 @@ inline void check_ply_bytes(const std::uint8_t* bytes, std::size_t size) {
   }
   try {
     const auto cloud = slscan::io::read_ply(path);
-    if (cloud.normals.size() != 0 && cloud.normals.size() != cloud.points.size())
+    if (!cloud.normals.empty() && cloud.normals.size() != cloud.points.size())
       fuzz_fail("PLY normals and points differ in count");
   } catch (const slscan::io::IoError& e) {
     if (std::string(e.what()).empty()) fuzz_fail("PLY error without a message");

@@ -24,7 +24,7 @@ namespace slproto::fuzz {
 // Writes the input to a per-process scratch file named `name` and returns its path.
 inline std::string scratch_file(const std::string& name, const std::uint8_t* bytes, std::size_t size) {
   static const std::filesystem::path folder = [] {
-    const auto dir = std::filesystem::temp_directory_path() / ("slscan-fuzz-host-" + std::to_string(::getpid()));
+    auto dir = std::filesystem::temp_directory_path() / ("slscan-fuzz-host-" + std::to_string(::getpid()));
     std::filesystem::create_directories(dir);
     return dir;
   }();

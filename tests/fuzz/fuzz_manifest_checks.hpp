@@ -21,7 +21,7 @@ inline void check_calibration_manifest(const std::uint8_t* bytes, std::size_t si
   // One small image every frame of a manifest may name ("a.png"), so parsing goes on past
   // the first frame to the size, bit-depth and completeness checks.
   static const std::filesystem::path folder = [] {
-    const auto dir = std::filesystem::temp_directory_path() / ("slscan-fuzz-manifest-" + std::to_string(::getpid()));
+    auto dir = std::filesystem::temp_directory_path() / ("slscan-fuzz-manifest-" + std::to_string(::getpid()));
     std::filesystem::create_directories(dir);
     cv::imwrite((dir / "a.png").string(), cv::Mat(4, 6, CV_8UC1, cv::Scalar(128)));
     return dir;

@@ -238,7 +238,7 @@ void finish_tile(int n, TileSums& t, const TileConstants& k, float* __restrict c
     }
     // The first reason that applies: selects from the last reason to the first.
     const float saturated = reason[x];
-    float m = (coord >= -0.5f) & (coord <= k.extent_max) ? kValid : kOutOfRange;
+    float m = ((coord >= -0.5f) & (coord <= k.extent_max)) ? kValid : kOutOfRange;
     if constexpr (kPhase) m = q >= k.min_modulation ? m : kLowModulation;
     m = contrast >= k.min_contrast ? m : kLowContrast;
     m = saturated != kValid ? kSaturated : m;
@@ -594,12 +594,12 @@ void choose_smoothed(int w, const float* __restrict centre, const float* __restr
     const float tolerance = kCurvatureToleranceDnPx / (b > 1.0f ? b : 1.0f);
     const bool curved = R == 2 && std::fabs(mean_wide - mean_narrow) > tolerance;
     const float wide_value = c + (curved ? 1.5f * mean_narrow - 0.5f * mean_wide : mean_wide);
-    const float narrow_value = (n3 == 9.0f) & (std::fabs(mean_narrow) <= deviation) ? c + mean_narrow : c;
+    const float narrow_value = ((n3 == 9.0f) & (std::fabs(mean_narrow) <= deviation)) ? c + mean_narrow : c;
     const float full_value = std::fabs(mean_wide) <= deviation ? wide_value : narrow_value;
     // A NaN centre leaves the window short of full, so it stays NaN here.
     const bool full = n5 == full_count;
     result[x] = full ? full_value : c;
-    needs_fit[x] = !full & (n5 >= 6.0f) & (c == c) ? 1.0f : 0.0f;
+    needs_fit[x] = (!full & (n5 >= 6.0f) & (c == c)) ? 1.0f : 0.0f;
   }
 }
 
