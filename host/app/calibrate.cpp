@@ -7,7 +7,7 @@
 
 #include "slproto/calibration.hpp"
 #include "slscan/io/calibration_capture_files.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 #include "slscan/session/calibration_capture.hpp"
 #include "status.hpp"
 #ifdef SLSCAN_WITH_DEMO

@@ -18,7 +18,7 @@
 #include "run.hpp"
 #include "slproto/calibration.hpp"
 #include "slrig/rig.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 extern char** environ;
 

@@ -5,7 +5,7 @@
 #include <numbers>
 #include <optional>
 
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::app {
 

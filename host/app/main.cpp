@@ -20,7 +20,7 @@
 #include "real_data.hpp"
 #include "run.hpp"
 #include "slproto/messages.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 #include "status.hpp"
 #include "worker_threads.hpp"
 

@@ -14,6 +14,7 @@
 #include "report_html.hpp"
 #include "slscan/io/mesh_file.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/io/stl.hpp"
 #include "viewer_bundle.hpp"
 
 namespace slscan::app {

@@ -18,6 +18,7 @@
 #include "slproto/calibration.hpp"
 #include "slscan/io/foreign_calibration.hpp"
 #include "slscan/io/image_sequence_import.hpp"
+#include "slscan/io/ply.hpp"
 
 namespace slscan::app {
 

@@ -8,7 +8,7 @@
 
 #include "run.hpp"
 #include "slscan/core/cloud_compare.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::app {
 

@@ -12,7 +12,7 @@
 #include "slproto/handshake.hpp"
 #include "slproto/status.hpp"
 #include "slproto/transport.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::app {
 

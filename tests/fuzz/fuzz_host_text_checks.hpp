@@ -17,7 +17,7 @@
 #include "fuzz_checks.hpp"
 #include "slscan/io/foreign_calibration.hpp"
 #include "slscan/io/image_sequence_import.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slproto::fuzz {
 

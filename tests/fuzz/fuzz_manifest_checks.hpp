@@ -13,7 +13,7 @@
 
 #include "fuzz_checks.hpp"
 #include "slscan/io/calibration_capture_files.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slproto::fuzz {
 

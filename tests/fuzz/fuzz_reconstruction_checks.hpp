@@ -29,7 +29,7 @@
 
 namespace slproto::fuzz {
 
-inline constexpr long kMaxPixels = 96 * 80;
+inline constexpr long kMaxPixels = 64 * 48;
 inline constexpr std::size_t kMaxPatterns = 40;
 
 // The model's points (0 when the input was set aside or refused); fuzz_fail() on a finding.

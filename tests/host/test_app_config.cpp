@@ -5,7 +5,7 @@
 #include <string>
 
 #include "config.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::app {
 namespace {

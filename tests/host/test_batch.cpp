@@ -10,7 +10,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 #include "slscan/session/batch.hpp"
 
 namespace slscan::session {

@@ -17,7 +17,7 @@
 #include "slproto/messages.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slscan/io/capture_replay.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
 namespace {

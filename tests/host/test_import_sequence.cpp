@@ -13,7 +13,7 @@
 #include "slscan/io/capture_replay.hpp"
 #include "slscan/io/foreign_calibration.hpp"
 #include "slscan/io/image_sequence_import.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace fs = std::filesystem;
 using namespace slscan;

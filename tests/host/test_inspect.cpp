@@ -24,6 +24,7 @@
 #include "slscan/core/scan_reconstruction.hpp"
 #include "slscan/io/mesh_file.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/io/stl.hpp"
 
 namespace slscan::core {
 namespace {

@@ -18,6 +18,7 @@
 #include "run.hpp"
 #include "slscan/io/mesh_file.hpp"
 #include "slscan/io/ply.hpp"
+#include "slscan/io/stl.hpp"
 
 namespace slscan::app {
 namespace {

@@ -7,6 +7,7 @@
 #include <fstream>
 
 #include "slscan/io/ply.hpp"
+#include "slscan/io/stl.hpp"
 
 namespace slscan::io {
 namespace {

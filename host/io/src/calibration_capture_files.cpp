@@ -12,7 +12,7 @@
 #include "slproto/calibration.hpp"
 #include "slproto/file_util.hpp"
 #include "slproto/json_fields.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
 

@@ -9,7 +9,7 @@
 #include <tuple>
 
 #include "slproto/zstd_codec.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
 

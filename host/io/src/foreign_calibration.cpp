@@ -24,7 +24,7 @@
 #include <string>
 #include <vector>
 
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
 

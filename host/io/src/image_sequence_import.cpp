@@ -16,7 +16,7 @@
 #include "slproto/framing.hpp"
 #include "slproto/json_fields.hpp"
 #include "slproto/messages.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
 

@@ -8,8 +8,8 @@
 #include <string>
 #include <utility>
 
+#include "slscan/io/io_error.hpp"
 #include "slscan/io/mesh_file.hpp"
-#include "slscan/io/ply.hpp"
 
 namespace slscan::io {
 

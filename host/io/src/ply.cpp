@@ -471,31 +471,4 @@ void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>&
   write_file_atomically(path, out);
 }
 
-void write_stl(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
-               const std::vector<Eigen::Vector3i>& triangles, const std::string& header_text) {
-  std::string out(80, '\0');
-  std::memcpy(out.data(), header_text.data(), std::min<std::size_t>(79, header_text.size()));
-  put(out, static_cast<std::uint32_t>(triangles.size()));
-  for (const auto& t : triangles) {
-    for (int k = 0; k < 3; ++k)
-      if (t[k] < 0 || static_cast<std::size_t>(t[k]) >= vertices.size())
-        throw IoError(path + ": triangle refers to vertex " + std::to_string(t[k]) + " of " +
-                      std::to_string(vertices.size()));
-    const Eigen::Vector3f& a = vertices[static_cast<std::size_t>(t[0])];
-    const Eigen::Vector3f& b = vertices[static_cast<std::size_t>(t[1])];
-    const Eigen::Vector3f& c = vertices[static_cast<std::size_t>(t[2])];
-    Eigen::Vector3f n = (b - a).cross(c - a);
-    const float len = n.norm();
-    if (len > 0) n /= len;
-    for (const Eigen::Vector3f* v : {static_cast<const Eigen::Vector3f*>(&n), &a, &b, &c})
-      for (int k = 0; k < 3; ++k) put(out, (*v)[k]);
-    put(out, std::uint16_t{0});
-  }
-  write_file_atomically(path, out);
-}
-
-void write_file_atomically(const std::string& path, std::string_view bytes) {
-  if (auto status = slproto::write_file_atomically(path, bytes); !status) throw IoError(status.error().message);
-}
-
 }  // namespace slscan::io

@@ -22,7 +22,7 @@
 #include <sstream>
 
 #include "slproto/file_util.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::session {
 

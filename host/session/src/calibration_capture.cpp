@@ -6,7 +6,7 @@
 #include <optional>
 
 #include "slscan/io/calibration_capture_files.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::session {
 

@@ -8,7 +8,7 @@
 #include "slproto/framing.hpp"
 #include "slproto/zstd_codec.hpp"
 #include "slscan/io/capture_replay.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 #include "slscan/session/stream_reconstruction.hpp"
 
 namespace slscan::session {

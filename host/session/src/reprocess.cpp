@@ -3,7 +3,7 @@
 #include <new>
 #include <stdexcept>
 
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 #include "slscan/session/stream_reconstruction.hpp"
 
 namespace slscan::session {

@@ -6,7 +6,7 @@
 #include <string>
 
 #include "slscan/io/capture_replay.hpp"
-#include "slscan/io/ply.hpp"
+#include "slscan/io/io_error.hpp"
 #include "slscan/mesh/mesher.hpp"
 
 namespace slscan::session {

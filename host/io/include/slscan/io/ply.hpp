@@ -2,19 +2,13 @@
 // file and are renamed when complete, so a failed run never leaves a half-written model.
 #pragma once
 
-#include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "slscan/core/point_cloud.hpp"
+#include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
-
-// Any file problem: the message names the file and what was wrong (and where, for parsing).
-class IoError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
 
 // Every vertex property of a PLY file as a column of doubles, in file order; faces as index lists.
 struct PlyTable {
@@ -54,12 +48,5 @@ void write_mesh_ply(const std::string& path, const std::vector<Eigen::Vector3f>&
                     const std::vector<Eigen::Vector3f>& normals, const std::vector<Eigen::Vector3i>& triangles,
                     const PlyWriteOptions& options = {}, const std::vector<std::uint8_t>& face_filled = {},
                     const std::vector<float>& intensity = {});
-
-// Binary STL of a triangle mesh (facet normals computed from the triangles).
-void write_stl(const std::string& path, const std::vector<Eigen::Vector3f>& vertices,
-               const std::vector<Eigen::Vector3i>& triangles, const std::string& header = "slscan");
-
-// Writes bytes to path through a temporary file + rename; throws IoError.
-void write_file_atomically(const std::string& path, std::string_view bytes);
 
 }  // namespace slscan::io
