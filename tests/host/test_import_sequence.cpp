@@ -515,6 +515,21 @@ TEST_F(Import, ForeignCalibrationParserRunsInABoundedChildProcess) {
             std::string::npos)
       << hung;
 
+  // OpenCV 4.6's FileStorage XML reader dies (SIGSEGV in libopencv_core) on a cut attribute:
+  // the fuzz campaign of 2026-12-04 (docs/security.md, finding 13). The parser's process dies,
+  // slscan does not; the message says the parser could not read the file. The first byte 0
+  // picks .xml.
+  const std::string crash = (dir_ / "crash.xml").string();
+  {
+    std::ifstream in(SLSCAN_SOURCE_DIR "/tests/fuzz/known-crashes/foreign_calibration-crash-6c9d8286",
+                     std::ios::binary);
+    const std::string input{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+    ASSERT_EQ(input.at(0) % 4, 0);
+    std::ofstream(crash, std::ios::binary) << input.substr(1);
+  }
+  const std::string crashed = error_of(crash, {});
+  EXPECT_NE(crashed.find("foreign calibration " + crash + ": the parser "), std::string::npos) << crashed;
+
 #if !defined(__SANITIZE_ADDRESS__)  // sanitizer builds set no address-space limit (ASan's shadow)
   // 16 MB of text against a 4 MB budget: reading it is already too much.
   const std::string big = (dir_ / "big.yml").string();
