@@ -7,6 +7,7 @@
 #include <iterator>
 
 #include "../fuzz/fuzz_checks.hpp"
+#include "../fuzz/fuzz_discovery_checks.hpp"
 #include "../fuzz/fuzz_text_checks.hpp"
 
 namespace {
@@ -41,6 +42,10 @@ TEST(FuzzCorpus, CaptureReaderSeedsPassTheProperties) {
 TEST(FuzzCorpus, PatternPlanAndCalibrationSeedsPassTheProperties) {
   EXPECT_GE(replay("pattern_plan", slproto::fuzz::check_pattern_plan_text), 3u);
   EXPECT_GE(replay("calibration_file", slproto::fuzz::check_calibration_text), 2u);
+}
+
+TEST(FuzzCorpus, TxtRecordSeedsPassTheProperties) {
+  EXPECT_GE(replay("txt_records", slproto::fuzz::check_txt_records), 6u);
 }
 
 TEST(FuzzCorpus, SeedsDecodeAsIntended) {
