@@ -270,7 +270,7 @@ json scan_result_to_json(const core::ScanResult& result) {
     json per_view = json::array();
     for (std::size_t i = 0; i < result.registration.views.size(); ++i) {
       const auto& r = result.registration.views[i];
-      per_view.push_back({{"view", i},
+      per_view.push_back({{"view", result.views[i].view_index},  // the capture's view number
                           {"correction_deg", r.correction_deg},
                           {"correction_mm", r.correction_mm},
                           {"residual_rms_mm", r.residual_rms_mm},
@@ -279,7 +279,11 @@ json scan_result_to_json(const core::ScanResult& result) {
     }
     json pairs = json::array();
     for (const auto& p : result.registration.pairs)
-      pairs.push_back({{"views", {p.view_a, p.view_b}}, {"rms_mm", p.rms_mm}, {"correspondences", p.correspondences}});
+      pairs.push_back({{"views",
+                        {result.views[static_cast<std::size_t>(p.view_a)].view_index,
+                         result.views[static_cast<std::size_t>(p.view_b)].view_index}},
+                       {"rms_mm", p.rms_mm},
+                       {"correspondences", p.correspondences}});
     registration["views"] = per_view;
     registration["pairs"] = pairs;
     registration["iterations"] = result.registration.iterations;

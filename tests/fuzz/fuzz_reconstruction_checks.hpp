@@ -20,6 +20,7 @@
 #include <span>
 #include <stdexcept>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "fuzz_checks.hpp"
@@ -33,7 +34,9 @@ inline constexpr long kMaxPixels = 64 * 48;
 inline constexpr std::size_t kMaxPatterns = 40;
 
 // The model's points (0 when the input was set aside or refused); fuzz_fail() on a finding.
-inline std::size_t reconstruct_checked(const std::uint8_t* bytes, std::size_t size) {
+// Tests may leave a view unlit (`dark_view`: its frames all black) and take the whole result.
+inline std::size_t reconstruct_checked(const std::uint8_t* bytes, std::size_t size, int dark_view = -1,
+                                       slscan::core::ScanResult* result_out = nullptr) {
   if (size < 2) return 0;
   const int views = 1 + bytes[0] % 3;
   const double step_deg = (static_cast<int>(bytes[1]) - 128) * 3.0;
@@ -81,7 +84,7 @@ inline std::size_t reconstruct_checked(const std::uint8_t* bytes, std::size_t si
         for (std::size_t pattern = 0; pattern < plan->size(); ++pattern) {
           for (std::size_t i = 0; i < frame.size(); ++i) {
             const double coord = coded[side][i];
-            const float value = coord >= 0 ? plan->value(pattern, coord) : 0.0f;
+            const float value = coord >= 0 && view != dark_view ? plan->value(pattern, coord) : 0.0f;
             frame[i] = static_cast<std::byte>(std::lround(16 + 220 * value));
           }
           slscan::core::FrameInfo info;
@@ -96,13 +99,15 @@ inline std::size_t reconstruct_checked(const std::uint8_t* bytes, std::size_t si
         }
       }
     }
-    const auto result = reconstructor.finish();
+    auto result = reconstructor.finish();
     for (const auto& p : result.model.points)
       if (!std::isfinite(p.x()) || !std::isfinite(p.y()) || !std::isfinite(p.z()))
         fuzz_fail("a model point is not finite");
     for (const auto& n : result.model.normals)
       if (!std::isfinite(n.x()) || !std::isfinite(n.y()) || !std::isfinite(n.z())) fuzz_fail("a normal is not finite");
-    return result.model.points.size();
+    const std::size_t points = result.model.points.size();
+    if (result_out != nullptr) *result_out = std::move(result);
+    return points;
   } catch (const std::invalid_argument& e) {
     if (std::string_view(e.what()).empty()) fuzz_fail("invalid_argument without a message");
   }

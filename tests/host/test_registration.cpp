@@ -192,6 +192,52 @@ TEST(Registration, RecoversTurntableErrorsJointly) {
   EXPECT_EQ(result.pairs.back().view_b, 0);
 }
 
+// A view with no points (its frames unlit, nothing above the platform) is left at its coarse
+// pose; the others are registered as without it. register_views refuses an empty view, and the
+// reconstruction used to end there, naming it by its position among the views (issue 17).
+TEST(Registration, AViewWithoutPointsKeepsItsCoarsePoseAndTheOthersRegister) {
+  Scan scan = make_scan(0.002, 0, 10000, 1);
+  scan.views[2] = PointCloud{};
+  auto options = fast_options();
+  options.view_numbers = {10, 11, 12, 13, 14, 15};  // the capture's view numbers
+  const auto result = slscan::core::register_views_with_points(scan.views, scan.angles_deg, scan.calibration, options);
+  ASSERT_EQ(result.views.size(), 6u);
+  for (std::size_t v : {1u, 3u, 4u, 5u}) {
+    const auto [deg, mm] = pose_error(result.views[v].table_from_view, scan.truth[v], scan.views[v]);
+    EXPECT_LT(deg, 0.01) << "view " << v;
+    EXPECT_LT(mm, 0.005) << "view " << v;
+    EXPECT_GT(result.views[v].correspondences, 1000u);
+  }
+  const Eigen::Isometry3d coarse = slscan::core::coarse_table_from_view(scan.calibration, scan.angles_deg[2]);
+  EXPECT_TRUE(result.views[2].table_from_view.isApprox(coarse));
+  EXPECT_EQ(result.views[2].correspondences, 0u);
+  // Pairs by position in the views given: 0-1, 1-3, 3-4, 4-5, 5-0.
+  ASSERT_EQ(result.pairs.size(), 5u);
+  for (const auto& pair : result.pairs) {
+    EXPECT_NE(pair.view_a, 2);
+    EXPECT_NE(pair.view_b, 2);
+  }
+  EXPECT_EQ(result.pairs[1].view_a, 1);
+  EXPECT_EQ(result.pairs[1].view_b, 3);
+  // Messages name views by their numbers: two far-apart views that share nothing.
+  std::vector<PointCloud> apart = {scan.views[0], PointCloud{}, PointCloud{}, scan.views[3]};
+  for (auto& p : apart[1 + 2].points) p += Eigen::Vector3f(500, 0, 0);
+  options.view_numbers = {10, 11, 12, 13};
+  try {
+    (void)slscan::core::register_views_with_points(apart, {0, 60, 120, 180}, scan.calibration, options);
+    ADD_FAILURE() << "views 10 and 13 share nothing and were registered";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("ICP: views 10 and 13 share only"), std::string::npos) << e.what();
+  }
+  options.view_numbers.clear();
+  try {
+    (void)slscan::core::register_views_with_points({scan.views[0], PointCloud{}}, {0, 60}, scan.calibration, options);
+    ADD_FAILURE() << "one view with points was registered";
+  } catch (const std::runtime_error& e) {
+    EXPECT_STREQ(e.what(), "only 1 of 2 views have points: nothing to register them against");
+  }
+}
+
 // A sphere off the axis: its views pin the translations but not the rotations about its
 // centre. With an exact turntable the coarse poses are the truth; without the turntable prior
 // the free rotations are left to noise and nearest-neighbour bias (the solve is singular

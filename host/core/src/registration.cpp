@@ -65,8 +65,9 @@ class JointIcp {
  public:
   JointIcp(std::vector<ViewData>& views, std::vector<Eigen::Isometry3d>& poses, std::vector<bool> fixed,
            std::vector<std::pair<int, int>> directed_pairs, const IcpOptions& options, double prior_deg = 0,
-           double prior_mm = 0, const InterruptionPoint* interrupt = nullptr)
-      : views_(views),
+           double prior_mm = 0, const InterruptionPoint* interrupt = nullptr, std::vector<int> view_numbers = {})
+      : view_numbers_(std::move(view_numbers)),
+        views_(views),
         poses_(poses),
         prior_poses_(poses),
         fixed_(std::move(fixed)),
@@ -156,6 +157,10 @@ class JointIcp {
   }
 
  private:
+  std::string view_name(int position) const {
+    return std::to_string(view_numbers_.empty() ? position : view_numbers_[static_cast<std::size_t>(position)]);
+  }
+
   // Drops residuals beyond outlier_mad_factor robust sigmas of the pair's median.
   void reject_outliers(std::vector<Correspondence>& c) const {
     if (c.size() < 8) return;
@@ -183,7 +188,7 @@ class JointIcp {
     for (const auto& [s, t] : pairs_) {
       const auto corr = correspondences(s, t, gate, sources);
       if (corr.size() < 6)
-        throw std::runtime_error("ICP: views " + std::to_string(s) + " and " + std::to_string(t) + " share only " +
+        throw std::runtime_error("ICP: views " + view_name(s) + " and " + view_name(t) + " share only " +
                                  std::to_string(corr.size()) + " correspondences within " +
                                  slproto::short_number(gate) +
                                  " mm (too little overlap or too far from the coarse pose)");
@@ -262,6 +267,7 @@ class JointIcp {
     return converged;
   }
 
+  std::vector<int> view_numbers_;  // for messages (RegistrationOptions::view_numbers)
   std::vector<ViewData>& views_;
   std::vector<Eigen::Isometry3d>& poses_;
   std::vector<Eigen::Isometry3d> prior_poses_;  // the calibrated turntable poses
@@ -377,10 +383,15 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
     throw std::invalid_argument("register_views: " + std::to_string(views.size()) + " views but " +
                                 std::to_string(angles_deg.size()) + " angles");
   if (views.empty()) throw std::invalid_argument("register_views: no views");
+  if (!options.view_numbers.empty() && options.view_numbers.size() != views.size())
+    throw std::invalid_argument("register_views: " + std::to_string(options.view_numbers.size()) +
+                                " view numbers for " + std::to_string(views.size()) + " views");
   for (std::size_t i = 0; i < views.size(); ++i) {
-    check_view(views[i], "register_views: view " + std::to_string(i));
+    const std::string name =
+        std::to_string(options.view_numbers.empty() ? static_cast<int>(i) : options.view_numbers[i]);
+    check_view(views[i], "register_views: view " + name);
     if (!std::isfinite(angles_deg[i]))
-      throw std::invalid_argument("register_views: angle of view " + std::to_string(i) + " is not finite");
+      throw std::invalid_argument("register_views: angle of view " + name + " is not finite");
   }
   if (auto s = turntable.cam_from_table.check("turntable.cam_from_table"); !s)
     throw std::invalid_argument("register_views: " + s.error().message);
@@ -414,7 +425,7 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
       std::vector<bool> fixed(views.size(), false);
       fixed[0] = true;
       JointIcp icp(data, poses, fixed, directed, options.icp, options.turntable_prior_deg, options.turntable_prior_mm,
-                   &interrupt);
+                   &interrupt, options.view_numbers);
       result.iterations = icp.run();
     } else {
       // Chain: register view i onto view i-1 (as placed so far), starting from their coarse
@@ -427,7 +438,12 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
                                       options.icp.seed + static_cast<std::uint64_t>(i) - 1));
         pair_data.push_back(make_view(views[static_cast<std::size_t>(i)], options.icp.source_points_per_view,
                                       options.icp.seed + static_cast<std::uint64_t>(i)));
-        JointIcp icp(pair_data, pair_poses, {true, false}, {{1, 0}, {0, 1}}, options.icp, 0, 0, &interrupt);
+        std::vector<int> pair_numbers;
+        if (!options.view_numbers.empty())
+          pair_numbers = {options.view_numbers[static_cast<std::size_t>(i - 1)],
+                          options.view_numbers[static_cast<std::size_t>(i)]};
+        JointIcp icp(pair_data, pair_poses, {true, false}, {{1, 0}, {0, 1}}, options.icp, 0, 0, &interrupt,
+                     pair_numbers);
         result.iterations += icp.run();
         const Eigen::Isometry3d prev_from_this = pair_poses[0].inverse() * pair_poses[1];
         poses[static_cast<std::size_t>(i)] = poses[static_cast<std::size_t>(i - 1)] * prev_from_this;
@@ -465,6 +481,49 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
     v.correction_mm = translation_mm(correction);
     v.correspondences = view_count[i];
     v.residual_rms_mm = view_count[i] ? std::sqrt(view_sum2[i] / static_cast<double>(view_count[i])) : 0.0;
+  }
+  return result;
+}
+
+RegistrationResult register_views_with_points(const std::vector<PointCloud>& views,
+                                              const std::vector<double>& angles_deg,
+                                              const slproto::TurntableCalibration& turntable,
+                                              const RegistrationOptions& options, const InterruptionPoint& interrupt) {
+  std::vector<std::size_t> with_points;
+  for (std::size_t i = 0; i < views.size(); ++i)
+    if (views[i].size() > 0) with_points.push_back(i);
+  if (with_points.size() == views.size()) return register_views(views, angles_deg, turntable, options, interrupt);
+  if (views.size() != angles_deg.size() ||
+      (!options.view_numbers.empty() && options.view_numbers.size() != views.size()))
+    throw std::invalid_argument("register_views_with_points: " + std::to_string(views.size()) + " views, " +
+                                std::to_string(angles_deg.size()) + " angles and " +
+                                std::to_string(options.view_numbers.size()) + " view numbers");
+  if (with_points.size() < 2)
+    throw std::runtime_error("only " + std::to_string(with_points.size()) + " of " + std::to_string(views.size()) +
+                             " views have points: nothing to register them against");
+  // A copy of the views with points: this is the rare case (a view with nothing measured).
+  std::vector<PointCloud> subset;
+  std::vector<double> subset_angles;
+  RegistrationOptions subset_options = options;
+  subset_options.view_numbers.clear();
+  for (std::size_t i : with_points) {
+    subset.push_back(views[i]);
+    subset_angles.push_back(angles_deg[i]);
+    subset_options.view_numbers.push_back(options.view_numbers.empty() ? static_cast<int>(i) : options.view_numbers[i]);
+  }
+  const RegistrationResult registered = register_views(subset, subset_angles, turntable, subset_options, interrupt);
+  RegistrationResult result;
+  result.iterations = registered.iterations;
+  result.views.resize(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    result.views[i].coarse_table_from_view = coarse_table_from_view(turntable, angles_deg[i]);
+    result.views[i].table_from_view = result.views[i].coarse_table_from_view;
+  }
+  for (std::size_t k = 0; k < with_points.size(); ++k) result.views[with_points[k]] = registered.views[k];
+  for (PairResidual pair : registered.pairs) {
+    pair.view_a = static_cast<int>(with_points[static_cast<std::size_t>(pair.view_a)]);
+    pair.view_b = static_cast<int>(with_points[static_cast<std::size_t>(pair.view_b)]);
+    result.pairs.push_back(pair);
   }
   return result;
 }

@@ -614,7 +614,11 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
     table_from_view[i] = coarse_table_from_view(s.calibration.turntable, angles[i]);
   if (s.options.register_views && clouds.size() >= 2) {
     try {
-      result.registration = register_views(clouds, angles, s.calibration.turntable, s.options.registration, interrupt);
+      std::vector<int> view_numbers;
+      for (const ViewReport& view : result.views) view_numbers.push_back(view.view_index);
+      RegistrationOptions options = s.options.registration;
+      options.view_numbers = std::move(view_numbers);
+      result.registration = register_views_with_points(clouds, angles, s.calibration.turntable, options, interrupt);
       for (std::size_t i = 0; i < clouds.size(); ++i) table_from_view[i] = result.registration.views[i].table_from_view;
       result.registered = true;
     } catch (const std::runtime_error& e) {

@@ -12,6 +12,7 @@
 #include "slproto/calibration.hpp"
 #include "slproto/file_util.hpp"
 #include "slproto/json_fields.hpp"
+#include "slscan/io/image_file.hpp"
 #include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
@@ -95,8 +96,7 @@ core::CalibrationCapture read_manifest(const json& doc, const std::string& origi
     const std::string name = f.text("file");
     f.finish();
     const std::string file = (fs::path(folder) / name).string();
-    frame.image = cv::imread(file, cv::IMREAD_UNCHANGED);
-    if (frame.image.empty()) fail(file, "missing or not a readable image (" + path + ")");
+    frame.image = read_image_file(file, file + " (" + path + ")");
     if (frame.image.channels() != 1) fail(file, "expected a single-channel (grey) image");
     const int expected_depth = capture.bit_depth > 8 ? CV_16U : CV_8U;
     if (frame.image.depth() != expected_depth)

@@ -16,6 +16,7 @@
 #include "slproto/framing.hpp"
 #include "slproto/json_fields.hpp"
 #include "slproto/messages.hpp"
+#include "slscan/io/image_file.hpp"
 #include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
@@ -313,14 +314,7 @@ namespace {
 
 // One image as stored: grey, 8 or 16 bit.
 ImageCache::Image load_image(const std::string& path, const std::string& what) {
-  if (!fs::is_regular_file(path)) throw IoError(what + ": no such image file");
-  cv::Mat image;
-  try {
-    image = cv::imread(path, cv::IMREAD_ANYDEPTH | cv::IMREAD_ANYCOLOR);
-  } catch (const cv::Exception& e) {
-    throw IoError(what + ": unreadable image (" + e.what() + ")");
-  }
-  if (image.empty()) throw IoError(what + ": not an image OpenCV can read (PNG, BMP, TIFF, JPG)");
+  cv::Mat image = read_image_file(path, what);
   if (image.channels() == 3 || image.channels() == 4) {
     cv::Mat grey;
     cv::cvtColor(image, grey, image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);

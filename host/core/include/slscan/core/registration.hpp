@@ -77,6 +77,9 @@ struct RegistrationOptions {
   // instead of sliding. <= 0 turns the prior off.
   double turntable_prior_deg = 0.05;
   double turntable_prior_mm = 0.05;
+  // How messages name the views: views[i] is the capture's view view_numbers[i] (when views were
+  // left out, positions and numbers differ); empty: by position. The caller's, not a config field.
+  std::vector<int> view_numbers;
 };
 
 struct ViewRegistration {
@@ -108,5 +111,16 @@ struct RegistrationResult {
 RegistrationResult register_views(const std::vector<PointCloud>& views, const std::vector<double>& angles_deg,
                                   const slproto::TurntableCalibration& turntable,
                                   const RegistrationOptions& options = {}, const InterruptionPoint& interrupt = {});
+
+// register_views over the views that have points. A view whose cloud is empty (nothing left
+// above the platform: an empty table, a view the projectors did not light) keeps its coarse
+// pose and no correspondences; the result has one entry per view in the given order, and its
+// pairs are numbered by position in `views`. Throws std::runtime_error when fewer than two views
+// have points, and what register_views throws.
+RegistrationResult register_views_with_points(const std::vector<PointCloud>& views,
+                                              const std::vector<double>& angles_deg,
+                                              const slproto::TurntableCalibration& turntable,
+                                              const RegistrationOptions& options = {},
+                                              const InterruptionPoint& interrupt = {});
 
 }  // namespace slscan::core
