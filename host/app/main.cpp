@@ -92,6 +92,91 @@ void add_mesh_options(CLI::App& command, MeshOverrides& mesh) {
           "ply,stl,obj,3mf"));
 }
 
+// scan / verify: the scanner, the calibration, the output folder and the scan plan.
+void add_scan_options(CLI::App& command, ScanCommand& scan, std::string& connect) {
+  command.add_option("--connect", connect, "Scanner address HOST:PORT")->capture_default_str();
+  command.add_option("--calib", scan.calibration_path, "Calibration file (JSON)")->required()->check(existing(false));
+  command.add_option("--out", scan.output_dir, "Output folder")->required();
+  command.add_option("--config", scan.config_path, "Reconstruction parameters (JSON)")->check(existing(false));
+  command.add_option("--angles", scan.angles_deg, "Turntable angles in degrees")->capture_default_str();
+  command.add_option("--projectors", scan.projectors, "Projector ids (0 left, 1 right)")->capture_default_str();
+  command.add_option("--exposure-us", scan.exposure_us, "Exposure per pattern")->capture_default_str();
+  command.add_option("--period-us", scan.pattern_period_us, "Pattern period")->capture_default_str();
+  command.add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
+  command
+      .add_option("--stall-timeout-s", scan.stall_timeout_s,
+                  "Fail the scan (keeping what arrived) when the scanner sends no frame for this long")
+      ->check(CLI::Range(1, 3600))
+      ->capture_default_str();
+  command.add_option("--token-file", scan.token_file, "File holding the scanner's shared token");
+  command.add_flag("--compress", scan.compress,
+                   "Record the capture with zstd-compressed frames (lossless; reprocess reads both)");
+  command.add_flag("--overwrite", scan.overwrite,
+                   "Replace the capture already in --out (without it, such a folder is refused)");
+  add_mesh_options(command, scan.mesh);
+  command.add_option("--part-id", scan.part_id, "Part identifier, for the reports");
+  command.add_option("--operator", scan.operator_name, "Operator, for the reports");
+}
+
+// measure / verify: which artefact, its calibrated sizes, the region rule and the MPEs judged.
+struct ArtefactChoice {
+  bool ball_bar = false, sphere = false, plane = false;
+  std::vector<double> ball_bar_diameters;
+};
+
+void add_artefact_options(CLI::App& command, MeasureCommand& measure, ArtefactChoice& choice) {
+  choice.ball_bar_diameters = {measure.nominal_diameter_a_mm, measure.nominal_diameter_b_mm};
+  auto* ballbar_flag = command.add_flag(
+      "--ballbar", choice.ball_bar, "The ball bar: PF and PS of each sphere, SD of their centre distance (default)");
+  auto* sphere_flag = command.add_flag("--sphere", choice.sphere, "One sphere (give --diameter-mm): PF and PS");
+  auto* plane_flag = command.add_flag("--plane", choice.plane, "The largest plane: flatness F");
+  ballbar_flag->excludes(sphere_flag)->excludes(plane_flag);
+  sphere_flag->excludes(plane_flag);
+  command.add_option("--reference-mm", measure.reference_distance_mm, "Ball bar's calibrated centre distance")
+      ->capture_default_str();
+  command
+      .add_option("--diameters-mm", choice.ball_bar_diameters, "Ball bar's calibrated sphere diameters (first, second)")
+      ->expected(2)
+      ->capture_default_str();
+  command.add_option("--diameter-mm", measure.sphere_diameter_mm, "With --sphere: its calibrated diameter")
+      ->check(CLI::PositiveNumber);
+  command.add_option("--band-mm", measure.rule.band_mm, "Region: points within this of the robust fit")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  command
+      .add_option("--cone-margin-deg", measure.rule.cone_margin_deg,
+                  "Region: added to each joint cone's half-angle (sphere and ball bar)")
+      ->check(CLI::Range(0.0, 89.0))
+      ->capture_default_str();
+  command
+      .add_option("--exclude-fraction", measure.rule.exclude_fraction,
+                  "Share of a feature's points left out as outliers (VDI/VDE 2634-2: at most 0.003)")
+      ->check(CLI::Range(0.0, 0.003))
+      ->capture_default_str();
+  auto mpe_option = [&](const char* name, std::optional<double>& value, const char* what) {
+    command
+        .add_option_function<double>(
+            name, [&value](const double& v) { value = v; }, what)
+        ->check(CLI::NonNegativeNumber);
+  };
+  mpe_option("--mpe-pf", measure.mpe.pf_um, "Maximum permissible probing error form PF (um): PASS / FAIL");
+  mpe_option("--mpe-ps", measure.mpe.ps_um, "Maximum permissible |probing error size PS| (um)");
+  mpe_option("--mpe-sd", measure.mpe.sd_um, "Maximum permissible |sphere-spacing error SD| (um)");
+  mpe_option("--mpe-f", measure.mpe.f_um, "Maximum permissible flatness error F (um)");
+}
+
+// The artefact chosen; false (after saying why) when --sphere lacks its diameter.
+bool resolve_artefact(const std::string& command, const ArtefactChoice& choice, MeasureCommand& measure) {
+  if (choice.sphere && !(measure.sphere_diameter_mm > 0)) {
+    std::cerr << "slscan " << command << ": --sphere needs --diameter-mm (the sphere's calibrated diameter)\n";
+    return false;
+  }
+  measure.artefact = choice.sphere ? Artefact::sphere : (choice.plane ? Artefact::plane : Artefact::ball_bar);
+  measure.nominal_diameter_a_mm = choice.ball_bar_diameters.at(0);
+  measure.nominal_diameter_b_mm = choice.ball_bar_diameters.at(1);
+  return true;
+}
+
 // Levenshtein distance, for "did you mean".
 std::size_t edit_distance(const std::string& a, const std::string& b) {
   std::vector<std::size_t> row(b.size() + 1);
@@ -201,30 +286,9 @@ static int run_command_line(int argc, char** argv) {
   ScanCommand scan;
   std::string connect = "127.0.0.1:7878";
   auto* scan_cmd = app.add_subcommand("scan", "Scan with a connected scanner, record the capture and reconstruct it");
-  scan_cmd->add_option("--connect", connect, "Scanner address HOST:PORT")->capture_default_str();
-  scan_cmd->add_option("--calib", scan.calibration_path, "Calibration file (JSON)")->required()->check(existing(false));
-  scan_cmd->add_option("--out", scan.output_dir, "Output folder")->required();
-  scan_cmd->add_option("--config", scan.config_path, "Reconstruction parameters (JSON)")->check(existing(false));
-  scan_cmd->add_option("--angles", scan.angles_deg, "Turntable angles in degrees")->capture_default_str();
-  scan_cmd->add_option("--projectors", scan.projectors, "Projector ids (0 left, 1 right)")->capture_default_str();
-  scan_cmd->add_option("--exposure-us", scan.exposure_us, "Exposure per pattern")->capture_default_str();
-  scan_cmd->add_option("--period-us", scan.pattern_period_us, "Pattern period")->capture_default_str();
-  scan_cmd->add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
-  scan_cmd
-      ->add_option("--stall-timeout-s", scan.stall_timeout_s,
-                   "Fail the scan (keeping what arrived) when the scanner sends no frame for this long")
-      ->check(CLI::Range(1, 3600))
-      ->capture_default_str();
-  scan_cmd->add_option("--token-file", scan.token_file, "File holding the scanner's shared token");
-  scan_cmd->add_flag("--compress", scan.compress,
-                     "Record the capture with zstd-compressed frames (lossless; reprocess reads both)");
-  scan_cmd->add_flag("--overwrite", scan.overwrite,
-                     "Replace the capture already in --out (without it, such a folder is refused)");
+  add_scan_options(*scan_cmd, scan, connect);
   scan_cmd->add_flag("--measure-ballbar", scan.measure_ball_bar,
                      "Fit the ball bar in the model and put its figures in the reports");
-  add_mesh_options(*scan_cmd, scan.mesh);
-  scan_cmd->add_option("--part-id", scan.part_id, "Part identifier, for the reports");
-  scan_cmd->add_option("--operator", scan.operator_name, "Operator, for the reports");
 
   ConvertCommand convert;
   auto* convert_cmd = app.add_subcommand(
@@ -279,46 +343,18 @@ static int run_command_line(int argc, char** argv) {
   auto* measure_cmd =
       app.add_subcommand("measure", "VDI/VDE 2634-2 figures of an artefact found in a model (no ground truth)");
   measure_cmd->add_option("model", measure.model_path, "Point cloud (PLY)")->required()->check(existing(false));
-  bool want_ballbar = false, want_sphere = false, want_plane = false;
-  std::vector<double> ball_bar_diameters{measure.nominal_diameter_a_mm, measure.nominal_diameter_b_mm};
-  auto* ballbar_flag = measure_cmd->add_flag(
-      "--ballbar", want_ballbar, "The ball bar: PF and PS of each sphere, SD of their centre distance (default)");
-  auto* sphere_flag = measure_cmd->add_flag("--sphere", want_sphere, "One sphere (give --diameter-mm): PF and PS");
-  auto* plane_flag = measure_cmd->add_flag("--plane", want_plane, "The largest plane: flatness F");
-  ballbar_flag->excludes(sphere_flag)->excludes(plane_flag);
-  sphere_flag->excludes(plane_flag);
-  measure_cmd->add_option("--reference-mm", measure.reference_distance_mm, "Ball bar's calibrated centre distance")
-      ->capture_default_str();
-  measure_cmd
-      ->add_option("--diameters-mm", ball_bar_diameters, "Ball bar's calibrated sphere diameters (first, second)")
-      ->expected(2)
-      ->capture_default_str();
-  measure_cmd->add_option("--diameter-mm", measure.sphere_diameter_mm, "With --sphere: its calibrated diameter")
-      ->check(CLI::PositiveNumber);
-  measure_cmd->add_option("--band-mm", measure.rule.band_mm, "Region: points within this of the robust fit")
-      ->check(CLI::PositiveNumber)
-      ->capture_default_str();
-  measure_cmd
-      ->add_option("--cone-margin-deg", measure.rule.cone_margin_deg,
-                   "Region: added to each joint cone's half-angle (sphere and ball bar)")
-      ->check(CLI::Range(0.0, 89.0))
-      ->capture_default_str();
-  measure_cmd
-      ->add_option("--exclude-fraction", measure.rule.exclude_fraction,
-                   "Share of a feature's points left out as outliers (VDI/VDE 2634-2: at most 0.003)")
-      ->check(CLI::Range(0.0, 0.003))
-      ->capture_default_str();
-  auto mpe_option = [&](const char* name, std::optional<double>& value, const char* what) {
-    measure_cmd
-        ->add_option_function<double>(
-            name, [&value](const double& v) { value = v; }, what)
-        ->check(CLI::NonNegativeNumber);
-  };
-  mpe_option("--mpe-pf", measure.mpe.pf_um, "Maximum permissible probing error form PF (um): PASS / FAIL");
-  mpe_option("--mpe-ps", measure.mpe.ps_um, "Maximum permissible |probing error size PS| (um)");
-  mpe_option("--mpe-sd", measure.mpe.sd_um, "Maximum permissible |sphere-spacing error SD| (um)");
-  mpe_option("--mpe-f", measure.mpe.f_um, "Maximum permissible flatness error F (um)");
+  ArtefactChoice measure_choice;
+  add_artefact_options(*measure_cmd, measure, measure_choice);
   measure_cmd->add_flag("--json", measure.json, "Print the figures as JSON");
+
+  VerifyCommand verify;
+  std::string verify_connect = "127.0.0.1:7878";
+  ArtefactChoice verify_choice;
+  auto* verify_cmd = app.add_subcommand(
+      "verify",
+      "Check that a calibration still holds: scan a calibrated artefact, measure it, PASS / FAIL against the MPEs");
+  add_scan_options(*verify_cmd, verify.scan, verify_connect);
+  add_artefact_options(*verify_cmd, verify.measure, verify_choice);
 
   InspectCommand inspect;
   auto* inspect_cmd = app.add_subcommand(
@@ -504,14 +540,13 @@ static int run_command_line(int argc, char** argv) {
     if (*demo_cmd) return run_demo(demo, console);
 #endif
     if (*measure_cmd) {
-      if (want_sphere && !(measure.sphere_diameter_mm > 0)) {
-        std::cerr << "slscan measure: --sphere needs --diameter-mm (the sphere's calibrated diameter)\n";
-        return exit_usage;
-      }
-      measure.artefact = want_sphere ? Artefact::sphere : (want_plane ? Artefact::plane : Artefact::ball_bar);
-      measure.nominal_diameter_a_mm = ball_bar_diameters.at(0);
-      measure.nominal_diameter_b_mm = ball_bar_diameters.at(1);
+      if (!resolve_artefact("measure", measure_choice, measure)) return exit_usage;
       return run_measure(measure, console);
+    }
+    if (*verify_cmd) {
+      if (!resolve_artefact("verify", verify_choice, verify.measure)) return exit_usage;
+      std::tie(verify.scan.host, verify.scan.port) = parse_scanner_address(verify_connect);
+      return run_verify(verify, console);
     }
   } catch (const slscan::io::IoError& e) {
     std::cerr << "slscan: " << e.what() << "\n";

@@ -528,35 +528,36 @@ int run_scan(const ScanCommand& command, const Console& console) {
   return report_self_checks(console, result);
 }
 
-int run_measure(const MeasureCommand& command, const Console& console) {
+std::optional<MeasuredArtefact> measure_artefact(const MeasureCommand& command, const Console& console) {
   const core::PointCloud cloud = io::read_ply(command.model_path);
-  json out = {{"model", command.model_path}, {"points", cloud.size()}};
-  std::string kind;
+  MeasuredArtefact measured;
+  measured.points = cloud.size();
   try {
     switch (command.artefact) {
       case Artefact::ball_bar: {
-        kind = "ball_bar";
+        measured.kind = "ball_bar";
         const std::array<double, 2> diameters{command.nominal_diameter_a_mm, command.nominal_diameter_b_mm};
         const core::BallBarFeatures bar =
             core::ball_bar_features(cloud, diameters, command.reference_distance_mm, command.rule);
-        out[kind] = ball_bar_features_to_json(bar, diameters, command.reference_distance_mm, command.rule, command.mpe);
+        measured.figures =
+            ball_bar_features_to_json(bar, diameters, command.reference_distance_mm, command.rule, command.mpe);
         break;
       }
       case Artefact::sphere: {
-        kind = "sphere";
+        measured.kind = "sphere";
         if (!(command.sphere_diameter_mm > 0))
           throw std::invalid_argument("measure --sphere needs --diameter-mm (the sphere's calibrated diameter)");
         const core::FoundSphere found = core::find_sphere(cloud, command.sphere_diameter_mm / 2);
         const core::SphereFeature s =
             core::sphere_feature(cloud.points, found.fit, command.sphere_diameter_mm, command.rule);
-        out[kind] = sphere_feature_to_json(s, command.sphere_diameter_mm, command.mpe);
-        out[kind]["procedure"] = "VDI/VDE 2634-2 from the scan alone (no ground truth)";
-        out[kind]["region_rule"] = region_rule_json(command.rule);
+        measured.figures = sphere_feature_to_json(s, command.sphere_diameter_mm, command.mpe);
+        measured.figures["procedure"] = "VDI/VDE 2634-2 from the scan alone (no ground truth)";
+        measured.figures["region_rule"] = region_rule_json(command.rule);
         break;
       }
       case Artefact::plane: {
-        kind = "plane";
-        out[kind] = plane_feature_to_json(core::plane_feature(cloud, command.rule), command.rule, command.mpe);
+        measured.kind = "plane";
+        measured.figures = plane_feature_to_json(core::plane_feature(cloud, command.rule), command.rule, command.mpe);
         break;
       }
     }
@@ -566,13 +567,22 @@ int run_measure(const MeasureCommand& command, const Console& console) {
     throw;
   } catch (const std::exception& e) {  // the fit itself failed: the artefact is not in the cloud
     console.warn(command.model_path + ": " + e.what());
-    return exit_measurement;
+    return std::nullopt;
   }
-  if (command.json)
+  measured.within_mpe = all_within_mpe(measured.figures);
+  return measured;
+}
+
+int run_measure(const MeasureCommand& command, const Console& console) {
+  const auto measured = measure_artefact(command, console);
+  if (!measured) return exit_measurement;
+  if (command.json) {
+    const json out = {{"model", command.model_path}, {"points", measured->points}, {measured->kind, measured->figures}};
     std::printf("%s\n", out.dump(2).c_str());
-  else
-    std::printf("%s", feature_text(kind, out[kind]).c_str());
-  return all_within_mpe(out) ? exit_ok : exit_out_of_tolerance;
+  } else {
+    std::printf("%s", feature_text(measured->kind, measured->figures).c_str());
+  }
+  return measured->within_mpe ? exit_ok : exit_out_of_tolerance;
 }
 
 }  // namespace slscan::app

@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -150,6 +151,27 @@ struct MeasureCommand {
   bool json = false;
 };
 int run_measure(const MeasureCommand& command, const Console& console);
+
+// The artefact's figures in command.model_path (what run_measure prints), judged against the
+// MPEs given; nullopt when the artefact was not found in the model (warned, exit_measurement).
+// Throws IoError / invalid_argument on bad input, as run_measure.
+struct MeasuredArtefact {
+  std::string kind;        // "ball_bar", "sphere", "plane"
+  nlohmann::json figures;  // as report.json and `measure --json` give them
+  bool within_mpe = true;  // every judged figure within its MPE
+  std::size_t points = 0;  // in the model
+};
+std::optional<MeasuredArtefact> measure_artefact(const MeasureCommand& command, const Console& console);
+
+// The field check of a calibration (issue 18): scan a calibrated artefact with the scanner and
+// the calibration, measure it from the scan alone, and say whether the calibration still holds:
+// PASS (exit 0) when every figure given an MPE is within it, FAIL (exit_out_of_tolerance)
+// otherwise. The scan's outputs go into scan.output_dir with verify.json beside report.json.
+struct VerifyCommand {
+  ScanCommand scan;        // the artefact's scan
+  MeasureCommand measure;  // the artefact, its calibrated sizes and the MPEs (model_path is set from the scan)
+};
+int run_verify(VerifyCommand command, const Console& console);
 
 struct DemoCommand {
   std::string scene = "ballbar";
