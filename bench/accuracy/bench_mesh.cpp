@@ -384,7 +384,8 @@ int main(int argc, char** argv) {
     const Figures points = distances(model.points, truth);
     std::printf("| %s | points (%zu) | %.1f / %.0f | | | %zu | | |\n", name.c_str(), model.size(), points.rms_um,
                 points.p99_um, points.far);
-    double raw_trim_mm = 0;  // our raw mode's trim distance, applied to Open3D's mesh too
+    // Our raw mode's trim distance, applied to Open3D's mesh too (unused without Open3D).
+    [[maybe_unused]] double raw_trim_mm = 0;
     for (const auto mode : {slscan::core::MeshMode::raw, slscan::core::MeshMode::watertight}) {
       slscan::core::MeshOptions options;
       options.mode = mode;
