@@ -352,15 +352,9 @@ CheckReport check_board(const hal::BoardConfig& board, const CheckOptions& optio
   c.report.board_path = board.source_path;
   c.ok("backends", hal::available_backends());
   hal::BoardDevices devices;
-  if (board.is_sim()) {
-#if defined(SLSCAND_HAVE_SIM)
-    auto rig = hal::sim::SimRig::create(board);
-    if (!rig) {
-      c.missing("sim rig", rig.error().message, "check [sim] in " + board.source_path);
-      return c.report;
-    }
-    devices.sim_rig = std::move(*rig);
-#endif
+  if (auto s = hal::open_board_simulation(board, devices); !s) {
+    c.missing("sim rig", s.error().message, "check [sim] in " + board.source_path);
+    return c.report;
   }
   check_gpio(c, board, devices);
   check_camera(c, board, devices);

@@ -248,7 +248,7 @@ void Daemon::serve_connection(slproto::Connection& connection, const std::functi
 std::uint64_t Daemon::capabilities() const {
   return pb::CAPABILITY_TURNTABLE | pb::CAPABILITY_TWO_PROJECTORS | pb::CAPABILITY_TIMING_LOG |
          (board_.trigger_source == hal::CameraTriggerSource::projector ? pb::CAPABILITY_HARDWARE_TRIGGER : 0) |
-         (board_.is_sim() ? pb::CAPABILITY_SIMULATED : 0) |
+         (devices_.simulated() ? pb::CAPABILITY_SIMULATED : 0) |
          (devices_.places_calibration_target() ? pb::CAPABILITY_CALIBRATION_TARGET : 0);
 }
 

@@ -258,12 +258,9 @@ int main(int argc, char** argv) {
   if (mdns && listen_address.rfind("127.", 0) != 0 && listen_address != "::1" && listen_address != "localhost") {
     char host[256] = {};
     (void)::gethostname(host, sizeof host - 1);
-    slproto::ScannerAdvert advert{board->name,
-                                  slscand::software_version(),
-                                  slproto::min_protocol_version,
-                                  slproto::protocol_version,
-                                  !token.empty(),
-                                  board->is_sim()};
+    slproto::ScannerAdvert advert{
+        board->name,    slscand::software_version(), slproto::min_protocol_version, slproto::protocol_version,
+        !token.empty(), (*daemon)->simulated()};
     auto started = slproto::MdnsPublisher::start("slscan " + board->name + " on " + host, (*daemon)->port(),
                                                  slproto::to_txt_records(advert));
     if (started) {

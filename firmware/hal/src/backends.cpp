@@ -164,19 +164,24 @@ slproto::Status BoardDevices::place_calibration_target(
   return slproto::Ok{};
 }
 
+slproto::Status open_board_simulation(const BoardConfig& board, BoardDevices& devices, const OpenOptions& options) {
+  if (!board.is_sim()) return slproto::Ok{};
+#if defined(SLSCAND_HAVE_SIM)
+  auto rig = sim::SimRig::create(board, options.sim_scene);
+  if (!rig) return std::move(rig).error();
+  devices.sim_rig = std::move(*rig);
+  return slproto::Ok{};
+#else
+  (void)devices;
+  (void)options;
+  return not_built("gpio.backend", board.gpio_backend);
+#endif
+}
+
 slproto::Result<BoardDevices> open_board_devices(const BoardConfig& board, const OpenOptions& options) {
   if (auto s = board.check(); !s) return s.error();
   BoardDevices devices;
-  if (board.is_sim()) {
-#if defined(SLSCAND_HAVE_SIM)
-    auto rig = sim::SimRig::create(board, options.sim_scene);
-    if (!rig) return std::move(rig).error();
-    devices.sim_rig = std::move(*rig);
-#else
-    return not_built("gpio.backend", board.gpio_backend);
-#endif
-  }
-  (void)options;
+  if (auto s = open_board_simulation(board, devices, options); !s) return s.error();
 
   auto chip = open_chip(board, devices);
   if (!chip) return std::move(chip).error();

@@ -217,18 +217,6 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
     port = static_cast<std::uint16_t>(p);
   }
 
-  slscan::hil::GpiodObserver gpiod_observer;
-  const bool sim_observer = board.is_sim();
-  bool gpiod_observing = false;
-  if (!sim_observer && !board.observer.chip.empty()) {
-    std::string error;
-    if (!gpiod_observer.start(board, error)) {
-      std::fprintf(stderr, "slscan_hil: %s\n", error.c_str());
-      return 3;
-    }
-    gpiod_observing = true;
-  }
-
   auto connection = slproto::connect(host, port, 10s);
   if (!connection) {
     std::fprintf(stderr, "slscan_hil: cannot connect to slscand at %s:%u: %s\n", host.c_str(), port,
@@ -239,6 +227,20 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
   if (!hello) {
     std::fprintf(stderr, "slscan_hil: hello refused: %s\n", hello.error().message.c_str());
     return 3;
+  }
+
+  // A simulated scanner records its own trigger edges (the observer's CSV); on hardware an
+  // independent gpiod observer watches the lines, started before the scan is requested.
+  slscan::hil::GpiodObserver gpiod_observer;
+  const bool sim_observer = (hello->capabilities() & pb::CAPABILITY_SIMULATED) != 0;
+  bool gpiod_observing = false;
+  if (!sim_observer && !board.observer.chip.empty()) {
+    std::string error;
+    if (!gpiod_observer.start(board, error)) {
+      std::fprintf(stderr, "slscan_hil: %s\n", error.c_str());
+      return 3;
+    }
+    gpiod_observing = true;
   }
 
   constexpr std::uint64_t kScanId = 1;

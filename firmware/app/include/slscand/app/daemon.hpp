@@ -84,6 +84,8 @@ class Daemon {
   DaemonStats stats() const;
   hal::BoardDevices& devices() { return devices_; }
   const hal::BoardConfig& board() const { return board_; }
+  // Whether its devices are the virtual rig's (CAPABILITY_SIMULATED).
+  bool simulated() const { return devices_.simulated(); }
 
  private:
   Daemon(hal::BoardConfig board, hal::BoardDevices devices, DaemonOptions options, slproto::Server server);

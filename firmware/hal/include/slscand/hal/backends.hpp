@@ -45,6 +45,8 @@ struct BoardDevices {
   slproto::Status place_calibration_target(const std::optional<slproto::CalibrationTargetPlacement>& target);
   // Whether place_calibration_target does anything here (CAPABILITY_CALIBRATION_TARGET).
   bool places_calibration_target() const { return sim_rig != nullptr; }
+  // Whether the devices are the virtual rig's, not hardware (CAPABILITY_SIMULATED, the mDNS advert).
+  bool simulated() const { return sim_rig != nullptr; }
 };
 
 struct OpenOptions {
@@ -52,6 +54,11 @@ struct OpenOptions {
 };
 
 slproto::Result<BoardDevices> open_board_devices(const BoardConfig& board, const OpenOptions& options = {});
+
+// The first step of open_board_devices: on a board whose devices are simulated, opens the
+// virtual rig they are drawn from (devices.sim_rig); on any other board it does nothing. The
+// only place that asks what kind of board this is (the sim backend's hook).
+slproto::Status open_board_simulation(const BoardConfig& board, BoardDevices& devices, const OpenOptions& options = {});
 
 // The steps of open_board_devices one at a time, for `slscand --check` (which goes on past a
 // missing device to report the others). On sim boards `devices.sim_rig` must be set first.
