@@ -1,9 +1,11 @@
 // Programs as separate processes for the integration tests: run one to its end with its output
-// in files (optionally with a file-size limit, as a full disk), and slscand on the sim board.
+// in files, pinned to CPUs or under memory and file-size limits, and slscand on the sim board.
 // SLSCAN_SOURCE_DIR and SLSCAND_BIN come from the test's compile definitions.
 #pragma once
 
 #include <fcntl.h>
+#include <gtest/gtest.h>
+#include <sched.h>
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -37,16 +39,36 @@ struct Finished {
   std::string out, err;
 };
 
-// Starts a program with stdout/stderr in files. `file_size_limit` > 0 sets RLIMIT_FSIZE in
-// the child (SIGXFSZ ignored, so a write past it fails with EFBIG as on a full disk).
-inline Child spawn(const std::vector<std::string>& args, const fs::path& log_stem,
-                   const std::vector<std::string>& env = {}, rlim_t file_size_limit = 0) {
+// What a child runs under: the CPUs, the address space and the file size it may use (as
+// `taskset -c`, `prlimit --as`, a full disk), and variables added to its environment.
+struct Limits {
+  int cpus = 0;                       // the first `cpus` CPUs this process may use; 0: all
+  rlim_t address_space = 0;           // RLIMIT_AS in bytes; 0: none
+  rlim_t file_size = 0;               // RLIMIT_FSIZE in bytes, SIGXFSZ ignored (a write past it fails with EFBIG)
+  std::vector<std::string> env = {};  // NAME=VALUE
+};
+
+// The first `count` CPUs of this process's affinity mask: `taskset -c 0` where CPU 0 is ours.
+inline cpu_set_t first_allowed_cpus(int count) {
+  cpu_set_t allowed, chosen;
+  CPU_ZERO(&allowed);
+  CPU_ZERO(&chosen);
+  if (::sched_getaffinity(0, sizeof allowed, &allowed) != 0) CPU_SET(0, &allowed);
+  for (int cpu = 0; cpu < CPU_SETSIZE && CPU_COUNT(&chosen) < count; ++cpu)
+    if (CPU_ISSET(cpu, &allowed)) CPU_SET(cpu, &chosen);
+  return chosen;
+}
+
+// Starts a program with stdin from /dev/null and stdout / stderr in LOG_STEM.out / .err.
+inline Child spawn(const std::vector<std::string>& args, const fs::path& log_stem, const Limits& limits = {}) {
   Child child{-1, log_stem.string() + ".out", log_stem.string() + ".err"};
   std::vector<std::string> args_copy = args;
   std::vector<char*> argv;
+  argv.reserve(args_copy.size() + 1);
   for (auto& a : args_copy) argv.push_back(a.data());
   argv.push_back(nullptr);
-  std::vector<std::string> env_copy = env;
+  std::vector<std::string> env_copy = limits.env;
+  const cpu_set_t cpus = first_allowed_cpus(limits.cpus);
   child.pid = ::fork();
   if (child.pid == 0) {
     const int in = ::open("/dev/null", O_RDONLY);
@@ -56,10 +78,15 @@ inline Child spawn(const std::vector<std::string>& args, const fs::path& log_ste
     ::dup2(out, STDOUT_FILENO);
     ::dup2(err, STDERR_FILENO);
     for (auto& e : env_copy) ::putenv(e.data());
-    if (file_size_limit > 0) {
+    if (limits.cpus > 0 && ::sched_setaffinity(0, sizeof cpus, &cpus) != 0) ::_exit(126);
+    if (limits.address_space > 0) {
+      const rlimit limit{limits.address_space, limits.address_space};
+      if (::setrlimit(RLIMIT_AS, &limit) != 0) ::_exit(126);
+    }
+    if (limits.file_size > 0) {
       ::signal(SIGXFSZ, SIG_IGN);
-      const rlimit limit{file_size_limit, file_size_limit};
-      ::setrlimit(RLIMIT_FSIZE, &limit);
+      const rlimit limit{limits.file_size, limits.file_size};
+      if (::setrlimit(RLIMIT_FSIZE, &limit) != 0) ::_exit(126);
     }
     ::execv(argv[0], argv.data());
     ::_exit(127);
@@ -68,6 +95,8 @@ inline Child spawn(const std::vector<std::string>& args, const fs::path& log_ste
   return child;
 }
 
+// A deadline, not a timing assertion: a child that hangs is killed and fails the test
+// (exit_code -1, with what it printed).
 inline Finished wait_for(Child& child, std::chrono::seconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   int status = 0;
@@ -75,7 +104,10 @@ inline Finished wait_for(Child& child, std::chrono::seconds timeout) {
     if (std::chrono::steady_clock::now() > deadline) {
       ::kill(child.pid, SIGKILL);
       ::waitpid(child.pid, &status, 0);
-      throw std::runtime_error("a child did not finish in time (stderr: " + child.err.string() + ")");
+      child.pid = -1;
+      ADD_FAILURE() << "hung: killed after " << timeout.count() << " s (stderr: " << child.err.string() << "):\n"
+                    << read_text(child.err);
+      return {-1, read_text(child.out), read_text(child.err)};
     }
     std::this_thread::sleep_for(20ms);
   }
@@ -83,16 +115,16 @@ inline Finished wait_for(Child& child, std::chrono::seconds timeout) {
   return {WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status), read_text(child.out), read_text(child.err)};
 }
 
-inline Finished run(const std::vector<std::string>& args, const fs::path& log_stem,
-                    const std::vector<std::string>& env = {}, rlim_t file_size_limit = 0) {
-  Child child = spawn(args, log_stem, env, file_size_limit);
-  return wait_for(child, 300s);
+inline Finished run(const std::vector<std::string>& args, const fs::path& log_stem, const Limits& limits = {},
+                    std::chrono::seconds timeout = 300s) {
+  Child child = spawn(args, log_stem, limits);
+  return wait_for(child, timeout);
 }
 
 // slscand on the sim board until the test ends; port() once it listens.
 class Slscand {
  public:
-  Slscand(const fs::path& log_stem, std::vector<std::string> extra = {}) {
+  explicit Slscand(const fs::path& log_stem, std::vector<std::string> extra = {}) {
     std::vector<std::string> args{SLSCAND_BIN, "--board", std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml",
                                   "--port",    "0",       "--no-realtime"};
     args.insert(args.end(), extra.begin(), extra.end());
@@ -109,6 +141,8 @@ class Slscand {
     if (port_ == 0) throw std::runtime_error("slscand did not start (stderr: " + child_.err.string() + ")");
   }
   ~Slscand() { stop(SIGTERM); }
+  Slscand(const Slscand&) = delete;
+  Slscand& operator=(const Slscand&) = delete;
   pid_t pid() const { return child_.pid; }
   int port() const { return port_; }
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }

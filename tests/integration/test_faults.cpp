@@ -85,7 +85,7 @@ class Faults : public ::testing::Test {
   }
   static void expect_scan_succeeds(const Slscand& daemon, const std::string& name,
                                    const std::vector<std::string>& env = {}) {
-    const Finished scan = run(scan_args(daemon.address(), dir_ / name), dir_ / name, env);
+    const Finished scan = run(scan_args(daemon.address(), dir_ / name), dir_ / name, {.env = env});
     EXPECT_EQ(scan.exit_code, 0) << scan.err;
     EXPECT_TRUE(fs::exists(dir_ / name / "model.ply"));
     EXPECT_EQ(frames_in(dir_ / name / "capture.slcap"), 38u);
@@ -129,7 +129,7 @@ TEST_F(Faults, DiskFullWhileRecordingFailsClearlyAndKeepsTheCompleteFrames) {
   Slscand daemon(dir_ / "full_slscand");
   // 3 MB: the request and about nine 640 x 512 frames fit, the tenth does not.
   const rlim_t limit = 3u << 20;
-  const Finished full = run(scan_args(daemon.address(), dir_ / "full"), dir_ / "full", {}, limit);
+  const Finished full = run(scan_args(daemon.address(), dir_ / "full"), dir_ / "full", {.file_size = limit});
   EXPECT_NE(full.exit_code, 0);
   EXPECT_NE(full.err.find("disk full or file too large"), std::string::npos) << full.err;
   EXPECT_NE(full.err.find((dir_ / "full" / "capture.slcap.partial").string()), std::string::npos) << full.err;
@@ -165,7 +165,7 @@ TEST_F(Faults, DiskFullWhileWritingOutputsKeepsThePreviousSet) {
         SLSCAN_BIN, "reprocess",          capture.string(), "--calib", (dir_ / "calib.json").string(),
         "--out",    (dir_ / out).string()};
     if (!config.empty()) args.insert(args.end(), {"--config", (dir_ / config).string()});
-    return run(args, dir_ / log, {}, limit);
+    return run(args, dir_ / log, {.file_size = limit});
   };
   const auto snapshot = [](const fs::path& dir) {
     std::map<std::string, std::string> files;

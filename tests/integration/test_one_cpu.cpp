@@ -23,6 +23,7 @@
 #include <string>
 #include <thread>
 
+#include "processes.hpp"
 #include "slproto/calibration.hpp"
 #include "slproto/capture.hpp"
 #include "slrig/rig.hpp"
@@ -49,6 +50,13 @@ std::optional<std::size_t> number_before(const std::string& text, const std::str
 
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
+using slscan::testing::Child;
+using slscan::testing::Finished;
+using slscan::testing::read_text;
+using slscan::testing::run;
+using slscan::testing::Slscand;
+using slscan::testing::spawn;
+using slscan::testing::wait_for;
 
 // Ctrl-C inside a stage ends it within this (a deadline for a loaded machine; the figure measured
 // is printed and in docs/faults.md).
@@ -61,128 +69,12 @@ constexpr rlim_t kTooLittleToDecode = rlim_t{320} << 20;
 // The small rig's default scan: 6 angles x 2 projectors x 19 patterns.
 constexpr std::size_t kFramesPerScan = 228;
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
 // Address-space limits do not work under ASan (it reserves terabytes of shadow memory); a
 // machine may also opt out with SLSCAN_NO_MEMORY_LIMIT set.
 bool memory_limits_unavailable() {
   // Read by the test's main thread before it starts any (concurrency-mt-unsafe is about setenv).
   return SLSCAN_SANITIZED || std::getenv("SLSCAN_NO_MEMORY_LIMIT") != nullptr;  // NOLINT(concurrency-mt-unsafe)
 }
-
-struct Limits {
-  int cpus = 0;              // pinned to the first `cpus` CPUs this test may use (taskset -c), 0: all
-  rlim_t address_space = 0;  // RLIMIT_AS in bytes (prlimit --as), 0: none
-};
-
-// The first `count` CPUs of this process's affinity mask: `taskset -c 0` where CPU 0 is ours.
-cpu_set_t first_allowed_cpus(int count) {
-  cpu_set_t allowed, chosen;
-  CPU_ZERO(&allowed);
-  CPU_ZERO(&chosen);
-  if (::sched_getaffinity(0, sizeof allowed, &allowed) != 0) CPU_SET(0, &allowed);
-  for (int cpu = 0; cpu < CPU_SETSIZE && CPU_COUNT(&chosen) < count; ++cpu)
-    if (CPU_ISSET(cpu, &allowed)) CPU_SET(cpu, &chosen);
-  return chosen;
-}
-
-struct Child {
-  pid_t pid = -1;
-  fs::path out, err;
-};
-
-struct Finished {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-Child spawn(const std::vector<std::string>& args, const fs::path& log_stem, Limits limits = {}) {
-  Child child{-1, log_stem.string() + ".out", log_stem.string() + ".err"};
-  std::vector<std::string> args_copy = args;
-  std::vector<char*> argv;
-  argv.reserve(args_copy.size() + 1);
-  for (auto& a : args_copy) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  const cpu_set_t cpus = first_allowed_cpus(limits.cpus);
-  child.pid = ::fork();
-  if (child.pid == 0) {
-    const int in = ::open("/dev/null", O_RDONLY);
-    const int out = ::open(child.out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    const int err = ::open(child.err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    ::dup2(in, STDIN_FILENO);
-    ::dup2(out, STDOUT_FILENO);
-    ::dup2(err, STDERR_FILENO);
-    if (limits.cpus > 0 && ::sched_setaffinity(0, sizeof cpus, &cpus) != 0) ::_exit(126);
-    if (limits.address_space > 0) {
-      const rlimit limit{limits.address_space, limits.address_space};
-      if (::setrlimit(RLIMIT_AS, &limit) != 0) ::_exit(126);
-    }
-    ::execv(argv[0], argv.data());
-    ::_exit(127);
-  }
-  if (child.pid < 0) throw std::runtime_error("fork failed");
-  return child;
-}
-
-// A deadline, not a timing assertion: a run that hangs is killed and fails the test.
-Finished wait_for(Child& child, std::chrono::seconds timeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  int status = 0;
-  while (::waitpid(child.pid, &status, WNOHANG) == 0) {
-    if (std::chrono::steady_clock::now() > deadline) {
-      ::kill(child.pid, SIGKILL);
-      ::waitpid(child.pid, &status, 0);
-      child.pid = -1;
-      ADD_FAILURE() << "hung: killed after " << timeout.count() << " s (stderr: " << child.err.string() << "):\n"
-                    << read_text(child.err);
-      return {-1, read_text(child.out), read_text(child.err)};
-    }
-    std::this_thread::sleep_for(20ms);
-  }
-  child.pid = -1;
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status), read_text(child.out), read_text(child.err)};
-}
-
-Finished run(const std::vector<std::string>& args, const fs::path& log_stem, Limits limits = {}) {
-  Child child = spawn(args, log_stem, limits);
-  return wait_for(child, 240s);
-}
-
-// slscand on the sim board until the test ends; port() once it listens.
-class Slscand {
- public:
-  explicit Slscand(const fs::path& log_stem) {
-    child_ = spawn(
-        {SLSCAND_BIN, "--board", std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml", "--port", "0", "--no-realtime"},
-        log_stem);
-    const auto deadline = std::chrono::steady_clock::now() + 60s;
-    while (port_ == 0 && std::chrono::steady_clock::now() < deadline) {
-      const std::string out = read_text(child_.out);
-      if (const auto at = out.find("listening on "); at != std::string::npos && out.find('\n', at) != std::string::npos)
-        port_ = std::stoi(out.substr(out.rfind(':', out.find('\n', at)) + 1));
-      else if (::waitpid(child_.pid, nullptr, WNOHANG) != 0)
-        break;
-      std::this_thread::sleep_for(20ms);
-    }
-    if (port_ == 0) throw std::runtime_error("slscand did not start (stderr: " + child_.err.string() + ")");
-  }
-  ~Slscand() {
-    if (child_.pid <= 0) return;
-    ::kill(child_.pid, SIGTERM);
-    ::waitpid(child_.pid, nullptr, 0);
-  }
-  Slscand(const Slscand&) = delete;
-  Slscand& operator=(const Slscand&) = delete;
-  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
-  std::string log() const { return read_text(child_.err); }
-
- private:
-  Child child_;
-  int port_ = 0;
-};
 
 class OneCpu : public ::testing::Test {
  protected:
