@@ -52,7 +52,7 @@ using Clock = std::chrono::steady_clock;
 Eigen::Isometry3d to_isometry(const slproto::RigidTransform& t) {
   Eigen::Isometry3d m = Eigen::Isometry3d::Identity();
   for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) m.linear()(r, c) = t.R[static_cast<std::size_t>(3 * r + c)];
+    for (int c = 0; c < 3; ++c) m.linear()(r, c) = t.R[3 * static_cast<std::size_t>(r) + static_cast<std::size_t>(c)];
     m.translation()(r) = t.t[static_cast<std::size_t>(r)];
   }
   return m;
@@ -83,7 +83,7 @@ slscan::core::PointCloud reconstruct(const slrig::Scene& scene) {
         info.projector = side;
         info.pattern_index = p;
         info.bytes_per_pixel = bytes_per_pixel;
-        info.stride_bytes = static_cast<std::size_t>(width * bytes_per_pixel);
+        info.stride_bytes = static_cast<std::size_t>(width) * static_cast<std::size_t>(bytes_per_pixel);
         reconstructor.add_frame(info, std::as_bytes(std::span(frame)));
       }
     if (view == 0) cam0_from_table = renderer.ground_truth().cam_from_table;
@@ -326,7 +326,7 @@ void open3d_rows(const std::string& scene, const slscan::core::PointCloud& model
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int run_bench(int argc, char** argv) {
   std::string size_name = "small", cache;
   int repeats = 1;
   std::vector<std::string> scenes{"ballbar", "sphere", "blade", "teacup"};
@@ -337,7 +337,13 @@ int main(int argc, char** argv) {
     } else if (arg == "--cache" && i + 1 < argc) {
       cache = argv[++i];
     } else if (arg == "--repeats" && i + 1 < argc) {
-      repeats = std::max(1, std::atoi(argv[++i]));
+      char* end = nullptr;
+      const long n = std::strtol(argv[++i], &end, 10);
+      if (end == argv[i] || *end != '\0' || n < 1 || n > 1000) {
+        std::fprintf(stderr, "bench_mesh: --repeats wants a whole number from 1 to 1000, not '%s'\n", argv[i]);
+        return 2;
+      }
+      repeats = static_cast<int>(n);
     } else if (arg == "--scenes" && i + 1 < argc) {
       scenes.clear();
       std::stringstream list(argv[++i]);
@@ -364,7 +370,8 @@ int main(int argc, char** argv) {
     }
     const slrig::Scene& scene = *scene_or;
     slscan::core::PointCloud model;
-    const std::string cached = cache.empty() ? "" : cache + "/" + name + "_" + size_name + ".ply";
+    const std::string cached =
+        cache.empty() ? "" : (std::filesystem::path(cache) / (name + "_" + size_name + ".ply")).string();
     if (!cached.empty() && std::filesystem::exists(cached)) {
       model = slscan::io::read_ply(cached);
     } else {
@@ -416,4 +423,13 @@ int main(int argc, char** argv) {
   }
   std::printf("\npeak RSS %ld MB\n", peak_rss_mb());
   return 0;
+}
+
+int main(int argc, char** argv) {
+  try {
+    return run_bench(argc, argv);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bench_mesh: %s\n", e.what());
+    return 1;
+  }
 }

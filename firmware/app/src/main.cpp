@@ -126,7 +126,7 @@ int main(int argc, char** argv) {
     auto value = [&](const char* name) -> const char* {
       if (i + 1 >= argc) {
         std::fprintf(stderr, "slscand: %s needs a value\n", name);
-        std::exit(2);
+        std::exit(2);  // NOLINT(concurrency-mt-unsafe): the command line is read before any thread starts
       }
       return argv[++i];
     };

@@ -40,6 +40,7 @@
 #include "hil_check.hpp"
 #include "hil_record.hpp"
 #include "slproto/calibration.hpp"
+#include "slproto/file_util.hpp"
 #include "slproto/handshake.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slproto/transport.hpp"
@@ -68,7 +69,7 @@ struct Options {
       "                  [--views N] [--out DIR] [--json FILE] [--token-file F] [--no-timing] [--no-realtime]\n"
       "       slscan_hil check --board FILE --dir DIR [--json FILE] [--no-timing]\n",
       message.c_str());
-  std::exit(2);
+  std::exit(2);  // NOLINT(concurrency-mt-unsafe): the command line is read before any thread starts
 }
 
 // slscand as a child process, stopped (SIGTERM) when this goes out of scope.
@@ -78,13 +79,14 @@ class Daemon {
   bool start(const Options& o, const std::string& log_dir, std::string& error, std::uint16_t& port) {
     int out[2];
     if (pipe2(out, O_CLOEXEC) != 0) {
-      error = std::string("pipe: ") + std::strerror(errno);
+      error = std::string("pipe: ") + slproto::errno_text(errno);
       return false;
     }
     std::vector<std::string> args = {o.slscand_path, "--board", o.board_path, "--port", "0", "--timing-log", log_dir};
     if (!o.realtime) args.emplace_back("--no-realtime");
     if (!o.token_file.empty()) args.insert(args.end(), {"--token-file", o.token_file});
     std::vector<char*> argv;
+    argv.reserve(args.size() + 1);
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
     posix_spawn_file_actions_t actions;
@@ -96,7 +98,7 @@ class Daemon {
     if (rc != 0) {
       close(out[0]);
       pid_ = -1;
-      error = "cannot start " + o.slscand_path + ": " + std::strerror(rc);
+      error = "cannot start " + o.slscand_path + ": " + slproto::errno_text(rc);
       return false;
     }
     out_fd_ = out[0];
@@ -187,7 +189,7 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
   if (out_dir.empty()) {
     char templ[] = "/tmp/slscan-hil-XXXXXX";
     if (mkdtemp(templ) == nullptr) {
-      std::fprintf(stderr, "slscan_hil: cannot make a temporary directory: %s\n", std::strerror(errno));
+      std::fprintf(stderr, "slscan_hil: cannot make a temporary directory: %s\n", slproto::errno_text(errno).c_str());
       return 3;
     }
     out_dir = templ;
@@ -412,7 +414,7 @@ int main(int argc, char** argv) {
     std::FILE* file = std::fopen(o.token_file.c_str(), "r");
     if (file == nullptr) {
       std::fprintf(stderr, "slscan_hil: %s: cannot read the token file: %s\n", o.token_file.c_str(),
-                   std::strerror(errno));
+                   slproto::errno_text(errno).c_str());
       return 2;
     }
     char line[4096] = {};
