@@ -370,8 +370,12 @@ static int run_bench(int argc, char** argv) {
     }
     const slrig::Scene& scene = *scene_or;
     slscan::core::PointCloud model;
-    const std::string cached =
-        cache.empty() ? "" : (std::filesystem::path(cache) / (name + "_" + size_name + ".ply")).string();
+    std::string cached;
+    if (!cache.empty()) {
+      std::string file_name = name;
+      file_name.append("_").append(size_name).append(".ply");
+      cached = (std::filesystem::path(cache) / file_name).string();
+    }
     if (!cached.empty() && std::filesystem::exists(cached)) {
       model = slscan::io::read_ply(cached);
     } else {

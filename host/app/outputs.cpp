@@ -429,7 +429,9 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
     io::write_ply((fs::path(dir) / view_files.back()).string(), products.points,
                   {.binary = true, .comments = {"slscan view cloud, camera frame of this view, mm"}});
     const auto picture = [&](const std::string& suffix, const cv::Mat& image) {
-      const std::string path = (fs::path(dir) / "pictures" / (name + "_" + suffix + ".png")).string();
+      std::string file_name = name;
+      file_name.append("_").append(suffix).append(".png");
+      const std::string path = (fs::path(dir) / "pictures" / file_name).string();
       write_bytes(path, encode_png(image));
       files.pictures.push_back(path);
     };

@@ -155,6 +155,7 @@ int run_measure(const MeasureCommand& command, const Console& console);
 // The artefact's figures in command.model_path (what run_measure prints), judged against the
 // MPEs given; nullopt when the artefact was not found in the model (warned, exit_measurement).
 // Throws IoError / invalid_argument on bad input, as run_measure.
+// NOLINTNEXTLINE(bugprone-exception-escape): its implicit moves are nlohmann::json's and std::string's, noexcept
 struct MeasuredArtefact {
   std::string kind;        // "ball_bar", "sphere", "plane"
   nlohmann::json figures;  // as report.json and `measure --json` give them
