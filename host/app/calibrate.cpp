@@ -1,6 +1,7 @@
 #include "calibrate.hpp"
 
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -10,14 +11,13 @@
 #include "slscan/io/io_error.hpp"
 #include "slscan/session/calibration_capture.hpp"
 #include "status.hpp"
-#ifdef SLSCAN_WITH_DEMO
-#include "slrig/rig.hpp"
-#include "slscan/virtual_rig/virtual_calibration.hpp"
-#endif
+#include "simulated_scanner.hpp"
+#include "slscan/core/calibration_compare.hpp"
 
 namespace slscan::app {
 
 using json = nlohmann::json;
+namespace fs = std::filesystem;
 
 std::string calibration_report_json(const core::CalibrationReport& report) {
   json poses = json::array();
@@ -72,74 +72,95 @@ session::PoseAnswer ask_user(const slproto::GuidedCalibrationPose& pose, const s
   return session::PoseAnswer::ready;
 }
 
+// The capture through a scanner (session::capture_calibration), measured pose by pose.
+// Returns the exit code for a capture that stopped, or nullopt with `measured` filled.
+std::optional<int> capture_through_scanner(const CalibrateCommand& command, const session::ScannerAddress& scanner,
+                                           bool automatic, const std::string& source, const Console& console,
+                                           core::CalibrationMeasurements& measured) {
+  session::CalibrationCaptureRequest request;
+  request.scanner = scanner;
+  request.source = source;
+  request.target = command.target;
+  request.platform_radius_mm = command.platform_radius_mm;
+  request.turntable = !command.no_turntable;
+  request.folder = command.resume_dir.empty() ? command.write_capture_dir : command.resume_dir;
+  request.resume = !command.resume_dir.empty();
+  request.exposure_us = command.exposure_us;
+  request.pattern_period_us = command.pattern_period_us;
+  request.settle_ms = command.settle_ms;
+  request.stop = &interrupted;
+  if (!automatic) request.ask = ask_user;
+  try {
+    measured = session::capture_calibration(request, ConsoleLog(console));
+  } catch (const session::CalibrationCaptureStopped& e) {
+    console.warn(std::string("calibrate: ") + e.what());
+    return e.why == session::CalibrationCaptureStopped::Why::pose_rejected ? exit_measurement : exit_interrupted;
+  }
+  return std::nullopt;
+}
+
 }  // namespace
 
 int run_calibrate(const CalibrateCommand& command, const Console& console) {
-  core::CalibrationCapture capture;
+  core::CalibrationMeasurements measured;
   core::CalibrationOptions options;
   options.turntable = !command.no_turntable;
-#ifdef SLSCAN_WITH_DEMO
-  std::optional<virtual_rig::VirtualCalibrationCapture> rendered;
-#endif
+  std::optional<slproto::RigCalibration> truth;  // --virtual: the sim board's exact calibration
+  const int sources = static_cast<int>(!command.capture_dir.empty()) + static_cast<int>(!command.virtual_rig.empty()) +
+                      static_cast<int>(!command.connect.empty());
+  if (sources > 1) throw std::invalid_argument("calibrate: give a capture folder, --virtual or --connect, not two of them");
+  if (!command.resume_dir.empty() && command.connect.empty())
+    throw std::invalid_argument("calibrate: --resume continues a capture through a scanner: it needs --connect");
   if (!command.connect.empty()) {
-    if (!command.capture_dir.empty() || !command.virtual_rig.empty())
-      throw std::invalid_argument("calibrate: give a capture folder, --virtual or --connect, not two of them");
     if (!command.resume_dir.empty() && !command.write_capture_dir.empty() &&
         command.resume_dir != command.write_capture_dir)
       throw std::invalid_argument("calibrate: --resume " + command.resume_dir +
                                   " writes to that folder; --write-capture " + command.write_capture_dir +
                                   " names another");
-    session::CalibrationCaptureRequest request;
     const auto [host, port] = parse_scanner_address(command.connect);
-    request.scanner = {host, port, read_token_file(command.token_file)};
-    request.target = command.target;
-    request.platform_radius_mm = command.platform_radius_mm;
-    request.turntable = !command.no_turntable;
-    request.folder = command.resume_dir.empty() ? command.write_capture_dir : command.resume_dir;
-    request.resume = !command.resume_dir.empty();
-    request.exposure_us = command.exposure_us;
-    request.pattern_period_us = command.pattern_period_us;
-    request.settle_ms = command.settle_ms;
-    request.stop = &interrupted;
-    if (!command.auto_mode) request.ask = ask_user;
-    try {
-      capture = session::capture_calibration(request, ConsoleLog(console));
-    } catch (const session::CalibrationCaptureStopped& e) {
-      console.warn(std::string("calibrate: ") + e.what());
-      return e.why == session::CalibrationCaptureStopped::Why::pose_rejected ? exit_measurement : exit_interrupted;
-    }
-    console.info("captured " + std::to_string(capture.frames.size()) + " frames of " +
-                 std::to_string(capture.poses.size()) + " poses" +
-                 (request.folder.empty() ? std::string() : " (in " + request.folder + ")"));
+    if (auto stopped = capture_through_scanner(command, {host, port, read_token_file(command.token_file)},
+                                               command.auto_mode, {}, console, measured))
+      return *stopped;
   } else if (!command.virtual_rig.empty()) {
-#ifdef SLSCAN_WITH_DEMO
-    if (!command.capture_dir.empty())
-      throw std::invalid_argument("calibrate: give a capture folder or --virtual, not both");
     if (command.virtual_rig != "small" && command.virtual_rig != "full")
       throw std::invalid_argument("calibrate: --virtual takes \"small\" or \"full\", not \"" + command.virtual_rig +
                                   "\"");
-    const auto size = command.virtual_rig == "full" ? slrig::RigSize::full : slrig::RigSize::small;
-    console.info("rendering the virtual rig's calibration capture (" + command.virtual_rig + ")");
-    rendered = virtual_rig::render_virtual_calibration_capture(
-        slrig::scene_preset("calibration", size).value(),
-        "virtual rig, calibration preset (" + command.virtual_rig + ")", 0.05,
-        [&](std::size_t done, std::size_t total, const std::string& pose) {
-          console.progress({"rendering", done, total, "poses", pose});
-        });
-    console.end_progress();
-    capture = rendered->capture;
-    if (!command.write_capture_dir.empty()) {
-      io::write_calibration_capture(capture, command.write_capture_dir);
-      console.info("wrote the capture to " + command.write_capture_dir);
-    }
-#else
-    throw std::invalid_argument("calibrate: --virtual needs a build with the virtual rig");
-#endif
+    // The virtual rig is calibrated as a real scanner is: through slscand on the sim board,
+    // which places the checkerboard at each pose and steps its table.
+    const std::string slscand = find_slscand(command.slscand_path);
+    const TemporaryFolder work("slscan-calibrate-virtual-");
+    const fs::path board = work.path() / "board.toml";
+    write_sim_board(command.board_path, "sphere",
+                    command.virtual_rig == "full" ? VirtualRigSize::full : VirtualRigSize::small, board);
+    write_true_calibration(slscand, board, work.path() / "truth.json");
+    auto loaded = slproto::load_calibration((work.path() / "truth.json").string());
+    if (!loaded) throw DeviceError("the sim board's true calibration: " + loaded.error().message);
+    truth = std::move(*loaded);
+    console.info("calibrating the virtual rig (" + command.virtual_rig + ") through slscand on the sim board");
+    SimulatedScanner scanner(slscand, board, work.path() / "slscand.log");
+    CalibrateCommand virtual_command = command;
+    // The sim board's own timing (boards/sim.toml): a real DLP4500 needs the slower defaults.
+    virtual_command.exposure_us = 2000;
+    virtual_command.pattern_period_us = 5000;
+    virtual_command.settle_ms = 50;
+    const std::string source = "virtual rig (" + command.virtual_rig + "), through slscand on the sim board";
+    if (auto stopped = capture_through_scanner(virtual_command, {scanner.host(), scanner.port(), ""}, true, source,
+                                               console, measured))
+      return *stopped;
+    scanner.stop();
   } else {
     if (command.capture_dir.empty()) throw std::invalid_argument("calibrate: no capture folder given");
-    capture = io::read_calibration_capture(command.capture_dir);
+    const core::CalibrationCapture capture = io::read_calibration_capture(command.capture_dir);
     console.info("read " + std::to_string(capture.frames.size()) + " frames of " +
                  std::to_string(capture.poses.size()) + " poses from " + command.capture_dir);
+    // Measured here, pose by pose with a progress line, then solved below.
+    measured = core::measurements_of(capture);
+    measured.poses = capture.poses;
+    for (std::size_t p = 0; p < capture.poses.size(); ++p) {
+      console.progress({"measuring poses", p, capture.poses.size(), "poses", capture.poses[p].name});
+      measured.measured.push_back(core::measure_calibration_pose(capture, static_cast<int>(p), options));
+    }
+    console.end_progress();
   }
   core::RigCalibrationResult result;
   // Poses measured, then the solves: one progress line each.
@@ -153,7 +174,7 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
       console.progress({"solving", p.done, p.total, {}, p.step});
   };
   try {
-    result = core::calibrate_rig(capture, options);
+    result = core::calibrate_rig(measured, options);
     console.end_progress();
   } catch (const std::runtime_error& e) {
     console.end_progress();
@@ -162,11 +183,9 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
     return exit_bad_input;
   }
   if (!console.quiet) std::fputs(result.report.summary().c_str(), stdout);
-#ifdef SLSCAN_WITH_DEMO
-  if (rendered && !console.quiet)
+  if (truth && !console.quiet)
     std::printf("against the virtual rig's truth:\n%s",
-                virtual_rig::calibration_errors(result, *rendered).table().c_str());
-#endif
+                core::calibration_difference(result.calibration, *truth).table().c_str());
   if (auto status = slproto::save_calibration(command.output_path, result.calibration); !status)
     throw io::IoError(status.error().message);
   if (!command.report_path.empty())

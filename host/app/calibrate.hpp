@@ -1,7 +1,8 @@
-// `slscan calibrate`: a calibration capture folder (manifest.json + PNGs,
-// io::read_calibration_capture) -> one calibration file, with the report printed and, on
-// request, written as JSON. With `virtual_rig` the capture is rendered by the virtual rig instead
-// (slrig::calibration_poses), and the result is also compared with the rig's truth.
+// `slscan calibrate`: a calibration capture -> one calibration file, with the report printed
+// and, on request, written as JSON. The capture comes from a folder (manifest.json + PNGs,
+// io::read_calibration_capture), from a scanner pose by pose (--connect,
+// session::capture_calibration), or from the virtual rig (--virtual: slscand started on the sim
+// board and driven as a scanner, the result also compared with the rig's exact calibration).
 #pragma once
 
 #include <cstdint>
@@ -18,7 +19,9 @@ struct CalibrateCommand {
   std::string output_path;        // calibration file (JSON), written atomically
   std::string report_path;        // "" = no JSON report
   bool no_turntable = false;      // camera and projectors only
-  std::string virtual_rig;        // "", "small" or "full": render the capture on the virtual rig
+  std::string virtual_rig;        // "", "small" or "full": capture through slscand on the sim board
+  std::string slscand_path;       // --virtual: "" = find_slscand's
+  std::string board_path;         // --virtual: sim board file to start from ("" = boards/sim.toml)
   std::string write_capture_dir;  // --virtual / --connect: also write the capture folder
   // --connect HOST[:PORT]: capture through the scanner, pose by pose (session::capture_calibration).
   std::string connect;

@@ -396,12 +396,14 @@ static int run_command_line(int argc, char** argv) {
   calibrate_cmd->add_option("--out", calibrate.output_path, "Calibration file to write (JSON)")->required();
   calibrate_cmd->add_option("--report", calibrate.report_path, "Also write the calibration report (JSON)");
   calibrate_cmd->add_flag("--no-turntable", calibrate.no_turntable, "Camera and projectors only");
-#ifdef SLSCAN_WITH_DEMO
   calibrate_cmd
       ->add_option("--virtual", calibrate.virtual_rig,
-                   "Render the virtual rig's calibration capture (small or full) instead of reading one")
+                   "Calibrate the virtual rig (small or full) through slscand on the sim board")
       ->check(CLI::IsMember({"small", "full"}));
-#endif
+  calibrate_cmd->add_option("--slscand", calibrate.slscand_path, "With --virtual: the slscand executable")
+      ->check(existing(false));
+  calibrate_cmd->add_option("--board", calibrate.board_path, "With --virtual: the sim board file to start from")
+      ->check(existing(false));
   calibrate_cmd->add_option("--write-capture", calibrate.write_capture_dir,
                             "With --virtual or --connect: also write the capture folder (--connect: pose by pose)");
   calibrate_cmd->add_option("--connect", calibrate.connect,
@@ -492,7 +494,6 @@ static int run_command_line(int argc, char** argv) {
   compare_cmd->add_flag("--json", compare.json, "Print the figures as JSON");
   compare_cmd->add_option("--report", compare.report_path, "Also write the figures to this JSON file");
 
-#ifdef SLSCAN_WITH_DEMO
   DemoCommand demo;
   auto* demo_cmd = app.add_subcommand("demo", "Start slscand on the sim board, scan a scene and reconstruct it");
   demo_cmd->add_option("--scene", demo.scene, "ballbar, sphere, plane, blade or teacup")->capture_default_str();
@@ -505,8 +506,6 @@ static int run_command_line(int argc, char** argv) {
   demo_cmd->add_option("--board", demo.board_path, "Sim board file to start from")->check(existing(false));
   demo_cmd->add_flag("--overwrite", demo.overwrite,
                      "Replace the capture of an earlier demo in --out (without it, such a folder is refused)");
-
-#endif
 
   if (!check_subcommand_word(app, argc, argv)) return exit_usage;
   try {
@@ -536,9 +535,7 @@ static int run_command_line(int argc, char** argv) {
     if (*calibrate_cmd) return run_calibrate(calibrate, console);
     if (*compare_cmd) return run_compare(compare, console);
     if (*inspect_cmd) return run_inspect(inspect, console);
-#ifdef SLSCAN_WITH_DEMO
     if (*demo_cmd) return run_demo(demo, console);
-#endif
     if (*measure_cmd) {
       if (!resolve_artefact("measure", measure_choice, measure)) return exit_usage;
       return run_measure(measure, console);

@@ -243,6 +243,24 @@ void result_round_trips_through_the_file(const Fixture& f) {
   EXPECT_EQ(*parsed, f.result.calibration);
 }
 
+// `slscan calibrate` measures the poses one at a time and lets each pose's frames go
+// (measure_calibration_pose, then calibrate_rig on the measurements), as a capture through a
+// scanner does: the same file as measuring the whole capture held in memory.
+void measuring_pose_by_pose_gives_the_same_calibration(const Fixture& f) {
+  const RigCalibrationResult whole = calibrate_rig(f.capture);
+  EXPECT_EQ(slproto::format_calibration(whole.calibration), slproto::format_calibration(f.result.calibration));
+  EXPECT_EQ(whole.report.summary(), f.summary);
+  // Measurements of another size than the first pose's cannot be solved together.
+  CalibrationMeasurements measured = measurements_of(f.capture);
+  measured.poses = f.capture.poses;
+  for (std::size_t p = 0; p < f.capture.poses.size(); ++p)
+    measured.measured.push_back(measure_calibration_pose(f.capture, static_cast<int>(p), {}, false));
+  measured.measured.back().width += 2;
+  EXPECT_THROW(calibrate_rig(measured), std::invalid_argument);
+  measured.measured.pop_back();
+  EXPECT_THROW(calibrate_rig(measured), std::invalid_argument);  // a pose without its measurement
+}
+
 // One test: the capture takes ~15 s to render and calibrate, and CTest runs every TEST in its
 // own process, so separate TESTs would each pay for it (the suite runs twice in CI, once
 // under ASan). Each part keeps its name in the failure trace.
@@ -281,6 +299,10 @@ TEST(CalibrationRig, RecoversTheRigsTruth) {
   {
     SCOPED_TRACE("ResultRoundTripsThroughTheFile");
     result_round_trips_through_the_file(f);
+  }
+  {
+    SCOPED_TRACE("MeasuringPoseByPoseGivesTheSameCalibration");
+    measuring_pose_by_pose_gives_the_same_calibration(f);
   }
 }
 

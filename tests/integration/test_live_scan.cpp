@@ -249,7 +249,8 @@ TEST_F(LiveScan, ReportHoldsCountsResidualsAndTimings) {
   EXPECT_EQ(r["board_frames_dropped"].get<std::size_t>(), 0u);
   for (const char* counter : {"frames_lost", "packets_missing", "packets_resent", "resend_requests"})
     EXPECT_EQ(r["camera_link"][counter].get<std::uint64_t>(), 0u) << counter;  // the sim's link is perfect
-  EXPECT_EQ(r["calibration"]["source"], "virtual rig, calibration preset (small)");
+  // `slscan calibrate --virtual small`: through slscand's sim board, as a scanner is calibrated.
+  EXPECT_EQ(r["calibration"]["source"], "virtual rig (small), through slscand on the sim board");
 
   const json& scan = r["scan"];
   ASSERT_EQ(scan["views"].size(), views);

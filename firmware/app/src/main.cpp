@@ -4,6 +4,7 @@
 //   slscand --config /etc/slscan/slscand.toml [options above override it]
 //   slscand --config FILE | --board FILE --check
 //   slscand --board boards/sim.toml --timing-report [--views N] [--exposure-us E] [--period-us P]
+//   slscand --board boards/sim.toml --write-true-calibration FILE   (simulated boards only)
 //   slscand --list-backends | --version
 // Exit codes: 0 ok, 1 runtime failure, 2 bad command line or board file.
 #include <unistd.h>
@@ -17,6 +18,7 @@
 #include <string>
 #include <thread>
 
+#include "slproto/calibration.hpp"
 #include "slproto/discovery.hpp"
 #include "slproto/mdns.hpp"
 #include "slproto/messages.hpp"
@@ -41,6 +43,7 @@ void usage(std::FILE* out) {
       "       slscand --config FILE [the options above override the file's]\n"
       "       slscand (--config FILE | --board FILE) --check\n"
       "       slscand --board FILE --timing-report [--views N] [--exposure-us E] [--period-us P]\n"
+      "       slscand --board FILE --write-true-calibration FILE\n"
       "       slscand --list-backends | --version | --help\n"
       "Serves scans to one host at a time over slproto (TCP). --timing-report runs one scan on the\n"
       "board locally (use the sim board for a machine without hardware) and prints its timing.\n"
@@ -49,7 +52,10 @@ void usage(std::FILE* out) {
       "an explicit --insecure-no-token (docs/security.md). It announces itself with mDNS/DNS-SD\n"
       "(avahi-daemon) unless it listens on loopback or --no-mdns is given.\n"
       "--check reports each device, permission and setting the board needs, present or missing with\n"
-      "the fix, and exits 0 only if nothing is missing.\n",
+      "the fix, and exits 0 only if nothing is missing.\n"
+      "--write-true-calibration writes a simulated board's exact calibration (the virtual rig as\n"
+      "built: `slscan demo --true-calibration`, checking an estimated one) and exits; a board with\n"
+      "hardware has none (exit 2).\n",
       out);
 }
 
@@ -117,7 +123,7 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string board_path, bind, timing_dir, token_file, config_path;
+  std::string board_path, bind, timing_dir, token_file, config_path, true_calibration_path;
   long port = -1, views = 6, exposure_us = 0, period_us = 0;
   bool report = false, realtime = true, check = false, bind_given = false, realtime_given = false, mdns = true;
   bool insecure_no_token = false;
@@ -136,6 +142,8 @@ int main(int argc, char** argv) {
       config_path = value("--config");
     else if (arg == "--check")
       check = true;
+    else if (arg == "--write-true-calibration")
+      true_calibration_path = value("--write-true-calibration");
     else if (arg == "--no-mdns")
       mdns = false;
     else if (arg == "--bind")
@@ -212,6 +220,28 @@ int main(int argc, char** argv) {
     const slscand::CheckReport result = slscand::check_board(*board, options);
     std::fputs(result.to_text().c_str(), stdout);
     return result.all_ok() ? 0 : 1;
+  }
+  if (!true_calibration_path.empty()) {
+    // Only the simulation is opened: a hardware board's devices are not touched.
+    slscand::hal::BoardDevices devices;
+    if (auto opened = slscand::hal::open_board_simulation(*board, devices); !opened) {
+      std::fprintf(stderr, "slscand: %s: %s\n", board_path.c_str(), opened.error().message.c_str());
+      return 2;
+    }
+    auto truth = devices.true_calibration();
+    if (!truth) {
+      std::fprintf(stderr, "slscand: --write-true-calibration: board '%s' (%s): %s\n", board->name.c_str(),
+                   board_path.c_str(), truth.error().message.c_str());
+      return 2;
+    }
+    truth->created_by = std::string("slscand --write-true-calibration (") + slscand::software_version() + ")";
+    if (auto saved = slproto::save_calibration(true_calibration_path, *truth); !saved) {
+      std::fprintf(stderr, "slscand: %s\n", saved.error().message.c_str());
+      return 1;
+    }
+    std::printf("slscand: wrote the true calibration of board '%s' to %s\n", board->name.c_str(),
+                true_calibration_path.c_str());
+    return 0;
   }
   // The network policy before any device is opened: a refused start touches no hardware.
   std::string token;

@@ -598,6 +598,11 @@ void SimRig::load_patterns(const slproto::PatternPlan& plan, Nanos exposure_ns) 
   core_->projector_exposure_ns = exposure_ns;
 }
 
+slproto::RigCalibration SimRig::true_calibration() const {
+  std::lock_guard lock(core_->mutex);
+  return slrig::ground_truth_calibration(core_->board_scene);
+}
+
 slproto::Status SimRig::place_calibration_target(const std::optional<slproto::CalibrationTargetPlacement>& target) {
   std::lock_guard lock(core_->mutex);
   if (!target) {

@@ -164,6 +164,15 @@ slproto::Status BoardDevices::place_calibration_target(
   return slproto::Ok{};
 }
 
+slproto::Result<slproto::RigCalibration> BoardDevices::true_calibration() const {
+#if defined(SLSCAND_HAVE_SIM)
+  if (sim_rig) return sim_rig->true_calibration();
+#endif
+  return slproto::make_error(slproto::Errc::unsupported,
+                             "the board drives hardware, whose true calibration nobody knows: calibrate it "
+                             "(slscan calibrate --connect, docs/calibration.md)");
+}
+
 slproto::Status open_board_simulation(const BoardConfig& board, BoardDevices& devices, const OpenOptions& options) {
   if (!board.is_sim()) return slproto::Ok{};
 #if defined(SLSCAND_HAVE_SIM)

@@ -130,20 +130,10 @@ DecodedView decode(ProjectorViewDecoder& decoder, const std::vector<const cv::Ma
   return decoder.finish();
 }
 
-// Stage 1 for one pose: the corners in the camera and each projector's coordinates at them.
-struct PoseMeasurement {
-  bool has_image = false;  // a camera image or a white frame to look for the board in
-  CornerDetection detection;
-  // Per side: nullopt when the projector showed nothing at this pose, or when `missing` says
-  // which frame of its plan is absent.
-  std::array<std::optional<ProjectorCorners>, 2> projectors;
-  std::array<std::string, 2> missing;
-};
-
-PoseMeasurement measure_pose(const PoseFrames& frames, const std::array<slproto::PatternPlan, 2>& plans,
-                             const CheckerboardTarget& target, const CalibrationOptions& options,
-                             std::array<ProjectorViewDecoder, 2>& decoders, bool projectors = true) {
-  PoseMeasurement out;
+CalibrationPoseMeasurement measure_pose(const PoseFrames& frames, const std::array<slproto::PatternPlan, 2>& plans,
+                                        const CheckerboardTarget& target, const CalibrationOptions& options,
+                                        std::array<ProjectorViewDecoder, 2>& decoders, bool projectors = true) {
+  CalibrationPoseMeasurement out;
   const cv::Mat image = detection_image(frames, plans);
   out.has_image = !image.empty();
   if (!out.has_image) return out;
@@ -181,19 +171,75 @@ std::string fixed(double value, int digits) {
 
 }  // namespace
 
+CalibrationMeasurements measurements_of(const CalibrationCapture& capture) {
+  CalibrationMeasurements out;
+  out.target = capture.target;
+  out.pattern_plan = capture.pattern_plan;
+  out.platform_radius_mm = capture.platform_radius_mm;
+  out.source = capture.source;
+  return out;
+}
+
 RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const CalibrationOptions& options) {
   capture.target.check();
   const std::array<slproto::PatternPlan, 2> plans{capture.plan(CodingAxis::columns), capture.plan(CodingAxis::rows)};
   int width = 0, height = 0;
   const std::vector<PoseFrames> frames = index_frames(capture, plans, width, height);
-  const int projector_width = capture.pattern_plan.projector_width;
-  const int projector_height = capture.pattern_plan.projector_height;
+  std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
+  CalibrationMeasurements measurements = measurements_of(capture);
+  measurements.poses = capture.poses;
+  for (std::size_t p = 0; p < capture.poses.size(); ++p) {
+    if (options.progress)
+      options.progress({CalibrationProgress::Phase::poses, p, capture.poses.size(),
+                        capture.poses[p].name.empty() ? "pose " + std::to_string(p) : capture.poses[p].name});
+    CalibrationPoseMeasurement measured = measure_pose(frames[p], plans, capture.target, options, decoders);
+    measured.width = width;
+    measured.height = height;
+    measurements.measured.push_back(std::move(measured));
+  }
+  if (options.progress)
+    options.progress({CalibrationProgress::Phase::poses, capture.poses.size(), capture.poses.size(), {}});
+  return calibrate_rig(measurements, options);
+}
+
+CalibrationPoseMeasurement measure_calibration_pose(const CalibrationCapture& capture, int pose,
+                                                    const CalibrationOptions& options, bool projectors) {
+  capture.target.check();
+  const std::array<slproto::PatternPlan, 2> plans{capture.plan(CodingAxis::columns), capture.plan(CodingAxis::rows)};
+  int width = 0, height = 0;
+  const std::vector<PoseFrames> frames = index_frames(capture, plans, width, height);
+  if (pose < 0 || pose >= static_cast<int>(frames.size()))
+    throw std::invalid_argument("calibration capture: pose " + std::to_string(pose) + " of " +
+                                std::to_string(frames.size()));
+  std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
+  CalibrationPoseMeasurement measured =
+      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options, decoders, projectors);
+  measured.width = width;
+  measured.height = height;
+  return measured;
+}
+
+RigCalibrationResult calibrate_rig(const CalibrationMeasurements& measurements, const CalibrationOptions& options) {
+  measurements.target.check();
+  if (measurements.poses.empty()) throw std::invalid_argument("calibration capture: no poses");
+  if (measurements.measured.size() != measurements.poses.size())
+    throw std::invalid_argument("calibration: " + std::to_string(measurements.measured.size()) +
+                                " measured poses for " + std::to_string(measurements.poses.size()) + " poses");
+  const int width = measurements.measured.front().width;
+  const int height = measurements.measured.front().height;
+  for (std::size_t p = 0; p < measurements.measured.size(); ++p)
+    if (measurements.measured[p].width != width || measurements.measured[p].height != height)
+      throw std::invalid_argument("calibration: pose " + std::to_string(p) + " was measured in " +
+                                  std::to_string(measurements.measured[p].width) + " x " +
+                                  std::to_string(measurements.measured[p].height) + " images, pose 0 in " +
+                                  std::to_string(width) + " x " + std::to_string(height));
+  const int projector_width = measurements.pattern_plan.projector_width;
+  const int projector_height = measurements.pattern_plan.projector_height;
+  const CheckerboardTarget& target = measurements.target;
 
   RigCalibrationResult result;
   CalibrationReport& report = result.report;
-  report.poses.resize(capture.poses.size());
-
-  std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
+  report.poses.resize(measurements.poses.size());
 
   // 1. Corners in the camera, and each projector's coordinates at them.
   std::vector<TargetView> camera_views;
@@ -205,14 +251,13 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   auto tell = [&](CalibrationProgress::Phase phase, std::size_t done, std::size_t total, std::string step) {
     if (options.progress) options.progress({phase, done, total, std::move(step)});
   };
-  for (std::size_t p = 0; p < capture.poses.size(); ++p) {
-    const CalibrationPose& pose = capture.poses[p];
+  for (std::size_t p = 0; p < measurements.poses.size(); ++p) {
+    const CalibrationPose& pose = measurements.poses[p];
     PoseReport& pr = report.poses[p];
     pr.name = pose.name.empty() ? "pose " + std::to_string(p) : pose.name;
-    tell(CalibrationProgress::Phase::poses, p, capture.poses.size(), pr.name);
     pr.on_turntable = pose.on_turntable;
     pr.table_angle_deg = pose.table_angle_deg;
-    PoseMeasurement measured = measure_pose(frames[p], plans, capture.target, options, decoders);
+    CalibrationPoseMeasurement measured = measurements.measured[p];
     if (!measured.has_image) {
       report.skipped.push_back({pr.name, "camera image", "no camera image and no white pattern frame"});
       continue;
@@ -267,14 +312,13 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   // 2. Camera.
   const std::size_t solves = 3 + (options.joint_refinement ? 1 : 0) + (options.turntable ? 1 : 0);
   std::size_t solved = 0;
-  tell(CalibrationProgress::Phase::poses, capture.poses.size(), capture.poses.size(), {});
   tell(CalibrationProgress::Phase::solve, solved++, solves, "camera");
   if (static_cast<int>(camera_views.size()) < options.min_camera_views)
     throw std::runtime_error("calibration: the board was found in " + std::to_string(camera_views.size()) +
                              " poses, at least " + std::to_string(options.min_camera_views) +
                              " are needed for the camera" + skipped_text());
   const DeviceCalibration camera =
-      calibrate_camera(capture.target, camera_views, width, height, options.camera_lens, options.min_camera_views);
+      calibrate_camera(target, camera_views, width, height, options.camera_lens, options.min_camera_views);
   report.camera_views = static_cast<int>(camera_views.size());
   report.camera_rms_px = camera.rms_px;
   for (std::size_t i = 0; i < camera_views.size(); ++i)
@@ -292,7 +336,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
                                std::to_string(proj_views[s].size()) + " poses, at least " +
                                std::to_string(options.min_projector_views) + " are needed" + skipped_text());
     const ProjectorSolve solve =
-        calibrate_projector(capture.target, camera.model, proj_cam_views[s], proj_views[s], projector_width,
+        calibrate_projector(target, camera.model, proj_cam_views[s], proj_views[s], projector_width,
                             projector_height, options.projector_lens, options.min_projector_views);
     cal.projectors[s] = solve.calibration;
     report.projector_views[s] = static_cast<int>(proj_views[s].size());
@@ -305,7 +349,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   // target poses and through them the camera's intrinsics.
   if (options.joint_refinement) {
     tell(CalibrationProgress::Phase::solve, solved++, solves, "joint refinement");
-    std::vector<std::size_t> camera_view_of_pose(capture.poses.size(), 0);
+    std::vector<std::size_t> camera_view_of_pose(measurements.poses.size(), 0);
     for (std::size_t i = 0; i < camera_pose.size(); ++i) camera_view_of_pose[camera_pose[i]] = i;
     std::array<ProjectorObservations, 2> observations;
     for (std::size_t s = 0; s < 2; ++s) {
@@ -313,7 +357,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
       observations[s].start = cal.projectors[s];
       for (std::size_t p : proj_pose[s]) observations[s].camera_view.push_back(camera_view_of_pose[p]);
     }
-    const RigBundle bundle = refine_rig_jointly(capture.target, camera, camera_views, observations, options.camera_lens,
+    const RigBundle bundle = refine_rig_jointly(target, camera, camera_views, observations, options.camera_lens,
                                                 options.projector_lens);
     cal.camera = bundle.camera.model;
     cal.camera_reprojection_rms_px = bundle.camera.rms_px;
@@ -329,7 +373,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   }
 
   // 5. Turntable.
-  cal.turntable.platform_radius_mm = capture.platform_radius_mm;
+  cal.turntable.platform_radius_mm = measurements.platform_radius_mm;
   if (options.turntable) {
     tell(CalibrationProgress::Phase::solve, solved++, solves, "turntable");
     if (static_cast<int>(table_views.size()) < options.min_turntable_views)
@@ -345,7 +389,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
           cal.camera_reprojection_rms_px / std::max(cal.projectors[s].reprojection_rms_px, 0.005);
     }
     const TurntableSolve table =
-        calibrate_turntable(capture.target, cal.camera, table_views, capture.platform_radius_mm, table_projectors);
+        calibrate_turntable(target, cal.camera, table_views, measurements.platform_radius_mm, table_projectors);
     cal.turntable = table.calibration;
     report.turntable_rms_px = table.rms_px;
     report.target_tilt_deg = table.target_tilt_deg;
@@ -357,8 +401,8 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   }
 
   tell(CalibrationProgress::Phase::solve, solved, solves, {});
-  cal.pattern_plan = capture.pattern_plan;
-  cal.source = capture.source;
+  cal.pattern_plan = measurements.pattern_plan;
+  cal.source = measurements.source;
   cal.created_by = options.created_by;
   if (auto status = cal.check(); !status)
     throw std::runtime_error("calibration: the result is not a valid calibration: " + status.error().message);
@@ -399,21 +443,16 @@ std::string CalibrationReport::summary() const {
 
 CalibrationPoseCheck check_calibration_pose(const CalibrationCapture& capture, int pose,
                                             const CalibrationOptions& options, bool projectors) {
-  capture.target.check();
-  const std::array<slproto::PatternPlan, 2> plans{capture.plan(CodingAxis::columns), capture.plan(CodingAxis::rows)};
-  int width = 0, height = 0;
-  const std::vector<PoseFrames> frames = index_frames(capture, plans, width, height);
-  if (pose < 0 || pose >= static_cast<int>(frames.size()))
-    throw std::invalid_argument("check_calibration_pose: pose " + std::to_string(pose) + " of " +
-                                std::to_string(frames.size()));
-  std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
-  const PoseMeasurement measured =
-      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options, decoders, projectors);
+  return check_calibration_pose(measure_calibration_pose(capture, pose, options, projectors), capture.target);
+}
+
+CalibrationPoseCheck check_calibration_pose(const CalibrationPoseMeasurement& measured,
+                                            const CheckerboardTarget& target) {
   CalibrationPoseCheck check;
-  check.corners = capture.target.corner_count();
+  check.corners = target.corner_count();
   check.board_found = measured.detection.found;
-  check.width = width;
-  check.height = height;
+  check.width = measured.width;
+  check.height = measured.height;
   if (check.board_found) check.camera_corners = measured.detection.view;
   check.reason = measured.has_image ? measured.detection.reason : "no camera image and no white pattern frame";
   for (std::size_t s = 0; s < 2; ++s)

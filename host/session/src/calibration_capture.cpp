@@ -1,5 +1,6 @@
 #include "slscan/session/calibration_capture.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstring>
 #include <filesystem>
@@ -164,9 +165,29 @@ void check_resumed(const core::CalibrationCapture& have, const core::Calibration
              "'");
 }
 
+// The pose's frames on their own (shallow copies): what measuring it looks at.
+core::CalibrationCapture frames_of_pose(const core::CalibrationCapture& capture, int pose) {
+  core::CalibrationCapture one;
+  one.target = capture.target;
+  one.pattern_plan = capture.pattern_plan;
+  one.bit_depth = capture.bit_depth;
+  one.platform_radius_mm = capture.platform_radius_mm;
+  one.poses = capture.poses;
+  one.source = capture.source;
+  for (const core::CalibrationFrame& frame : capture.frames)
+    if (frame.pose == pose) one.frames.push_back(frame);
+  return one;
+}
+
+// A measured pose needs its frames no more: only their manifest entries stay.
+void release_images(core::CalibrationCapture& capture, int pose) {
+  for (core::CalibrationFrame& frame : capture.frames)
+    if (frame.pose == pose) frame.image.release();
+}
+
 }  // namespace
 
-core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& request, const SessionLog& log) {
+core::CalibrationMeasurements capture_calibration(const CalibrationCaptureRequest& request, const SessionLog& log) {
   std::vector<GuidedCalibrationPose> guide;
   for (const GuidedCalibrationPose& pose : slproto::calibration_pose_guide())
     if (request.turntable || !pose.on_turntable) guide.push_back(pose);
@@ -193,8 +214,11 @@ core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& re
   capture.pattern_plan.axis = CodingAxis::columns;
   capture.bit_depth = bit_depth;
   capture.platform_radius_mm = request.platform_radius_mm;
-  capture.source = "slscan calibrate --connect " + request.scanner.host + ":" + std::to_string(request.scanner.port) +
-                   " (board '" + board.board_name() + "', " + board.software_version() + ")";
+  capture.source = !request.source.empty()
+                       ? request.source
+                       : "slscan calibrate --connect " + request.scanner.host + ":" +
+                             std::to_string(request.scanner.port) + " (board '" + board.board_name() + "', " +
+                             board.software_version() + ")";
   if (request.resume) {
     core::CalibrationCapture have = io::read_calibration_capture(request.folder);
     check_resumed(have, capture, guide, request.folder);
@@ -206,16 +230,26 @@ core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& re
                       " to continue that capture, or another folder)");
   }
 
+  // Each pose is measured once, as it arrives (resumed ones now), and its frames let go: the
+  // solve needs only the measurements.
+  core::CalibrationMeasurements measured = core::measurements_of(capture);
   // The boards of the poses taken (resumed ones included): a new pose must differ from them.
   std::vector<core::PoseFootprint> taken;
   int width = 0, height = 0;
   for (std::size_t p = 0; p < capture.poses.size(); ++p) {
-    const core::CalibrationPoseCheck check = core::check_calibration_pose(capture, static_cast<int>(p), {}, false);
+    const int pose = static_cast<int>(p);
+    measured.poses.push_back(capture.poses[p]);
+    measured.measured.push_back(core::measure_calibration_pose(capture, pose, request.options));
+    const core::CalibrationPoseCheck check =
+        core::check_calibration_pose(measured.measured.back(), capture.target);
     width = check.width;
     height = check.height;
     if (check.board_found)
       taken.push_back(core::pose_footprint(capture.poses[p].name, check.camera_corners, capture.target));
   }
+  for (core::CalibrationFrame& frame : capture.frames) frame.image.release();
+  const std::size_t resumed = measured.poses.size();
+  std::size_t frames_received = 0;
 
   PoseScanner scanner_pass(request, scanner, bit_depth, places_target);
   for (std::size_t p = capture.poses.size(); p < guide.size(); ++p) {
@@ -239,7 +273,9 @@ core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& re
       } catch (const DeviceError& e) {
         throw DeviceError(std::string(e.what()) + "; " + where_kept(request, p));
       }
-      const core::CalibrationPoseCheck check = core::check_calibration_pose(capture, pose);
+      core::CalibrationPoseMeasurement measurement =
+          core::measure_calibration_pose(frames_of_pose(capture, pose), pose, request.options);
+      const core::CalibrationPoseCheck check = core::check_calibration_pose(measurement, capture.target);
       problem = check.problem(request.min_lit_fraction);
       if (check.board_found)
         log.info(guided.name + ": board found (" + std::to_string(check.corners) + " corners), left projector lights " +
@@ -253,6 +289,8 @@ core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& re
       }
       if (problem.empty()) {
         taken.push_back(std::move(*footprint));
+        measured.poses.push_back(capture.poses.back());
+        measured.measured.push_back(std::move(measurement));
         log.info(guided.name + ": coverage " + core::pose_set_coverage(capture.target, taken, width, height).summary());
         break;
       }
@@ -265,9 +303,17 @@ core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& re
                                         guided.name + ": " + problem + "; " + where_kept(request, p));
     }
     if (!request.folder.empty()) io::write_calibration_capture_pose(capture, pose, request.folder);
+    frames_received += static_cast<std::size_t>(
+        std::count_if(capture.frames.begin(), capture.frames.end(),
+                      [&](const core::CalibrationFrame& f) { return f.pose == pose; }));
+    release_images(capture, pose);
   }
   scanner.connection.close();
-  return capture;
+  log.info("captured " + std::to_string(frames_received) + " frames of " +
+           std::to_string(measured.poses.size() - resumed) + " poses" +
+           (resumed > 0 ? " (and " + std::to_string(resumed) + " resumed)" : std::string()) +
+           (request.folder.empty() ? std::string() : " in " + request.folder));
+  return measured;
 }
 
 }  // namespace slscan::session

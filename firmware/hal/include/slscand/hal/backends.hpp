@@ -7,6 +7,7 @@
 #include <optional>
 #include <string>
 
+#include "slproto/calibration.hpp"
 #include "slproto/calibration_poses.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slproto/result.hpp"
@@ -47,6 +48,9 @@ struct BoardDevices {
   bool places_calibration_target() const { return sim_rig != nullptr; }
   // Whether the devices are the virtual rig's, not hardware (CAPABILITY_SIMULATED, the mDNS advert).
   bool simulated() const { return sim_rig != nullptr; }
+  // A simulated board's exact calibration (`slscand --write-true-calibration`); hardware has
+  // none to give (Errc::unsupported): it is calibrated (`slscan calibrate --connect`).
+  slproto::Result<slproto::RigCalibration> true_calibration() const;
 };
 
 struct OpenOptions {

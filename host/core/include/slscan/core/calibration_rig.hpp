@@ -15,6 +15,7 @@
 #include <cstddef>
 #include <functional>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -133,6 +134,41 @@ struct RigCalibrationResult {
   CalibrationReport report;
 };
 
+// Stage 1 of calibrate_rig for one pose: the board's corners in the camera and each
+// projector's coordinates at them. A few kilobytes where the pose's frames are tens of
+// megabytes (~380 MB at full resolution): a capture measured as its poses arrive
+// (session::capture_calibration) keeps these and lets the frames go.
+struct CalibrationPoseMeasurement {
+  bool has_image = false;     // a camera image or a white frame to look for the board in
+  CornerDetection detection;  // found = false with the reason when the board was not found
+  // Per side: nullopt when the projector showed nothing at this pose, or when `missing` says
+  // which frame of its plan is absent.
+  std::array<std::optional<ProjectorCorners>, 2> projectors;
+  std::array<std::string, 2> missing;
+  int width = 0, height = 0;  // of the camera images
+};
+
+// A capture reduced to its measurements: everything calibrate_rig's solves need.
+struct CalibrationMeasurements {
+  CheckerboardTarget target;
+  slproto::PatternPlanConfig pattern_plan;
+  double platform_radius_mm = 150;
+  std::vector<CalibrationPose> poses;
+  std::vector<CalibrationPoseMeasurement> measured;  // one per pose
+  std::string source;
+};
+
+// `projectors` false: the board only (no pattern decoding), for a quick look at a pose.
+// Throws std::invalid_argument on a capture that cannot be read (frames of the wrong type or
+// size, a pose out of range).
+CalibrationPoseMeasurement measure_calibration_pose(const CalibrationCapture& capture, int pose,
+                                                    const CalibrationOptions& options = {}, bool projectors = true);
+// The capture's settings with no poses yet; measure_calibration_pose fills `measured`.
+CalibrationMeasurements measurements_of(const CalibrationCapture& capture);
+
+// The solves (stages 2-5: camera, projectors, joint refinement, turntable) from measured poses.
+RigCalibrationResult calibrate_rig(const CalibrationMeasurements& measurements, const CalibrationOptions& options = {});
+// Measures every pose (progress phase `poses`), then solves.
 RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const CalibrationOptions& options = {});
 
 // One pose of a capture as calibrate_rig sees it (the same detection and decoding), for a
@@ -152,5 +188,8 @@ struct CalibrationPoseCheck {
 // `projectors` false: the board only (lit_corners stay 0), for poses checked before.
 CalibrationPoseCheck check_calibration_pose(const CalibrationCapture& capture, int pose,
                                             const CalibrationOptions& options = {}, bool projectors = true);
+// The same check of a pose measured already.
+CalibrationPoseCheck check_calibration_pose(const CalibrationPoseMeasurement& measured,
+                                            const CheckerboardTarget& target);
 
 }  // namespace slscan::core

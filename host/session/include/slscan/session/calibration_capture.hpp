@@ -37,6 +37,8 @@ struct CalibrationCaptureRequest {
   std::uint32_t pattern_period_us = 10000;
   std::uint32_t settle_ms = 200;
   std::chrono::milliseconds stall_timeout{60000};  // no frame for this long: the scanner is stuck
+  std::string source;                // for the calibration file; "" = the scanner's address and board
+  core::CalibrationOptions options;  // how poses are measured (detection, projector corners, decoding)
   double min_lit_fraction = 0.75;                  // of the board's corners, per projector (core::CalibrationPoseCheck)
   // A pose whose board lies within this share of the board's size in the image of a pose taken
   // (mean corner distance, core::too_similar_problem) is retaken, or refused with --auto; 0: no check.
@@ -60,6 +62,9 @@ class CalibrationCaptureStopped : public std::runtime_error {
 // Throws DeviceError (connection, the board's errors), CalibrationCaptureStopped, io::IoError
 // (the folder), std::invalid_argument (a resumed folder that is not this capture). Every
 // message that ends a capture with poses completed says where they are and how to resume.
-core::CalibrationCapture capture_calibration(const CalibrationCaptureRequest& request, const SessionLog& log);
+// Returns the poses' measurements (core::calibrate_rig solves from them); the frames are let go
+// pose by pose once measured (and written to `folder`), so memory holds one pose's frames at a
+// time, not the capture's (~380 MB against ~7.7 GB at full resolution).
+core::CalibrationMeasurements capture_calibration(const CalibrationCaptureRequest& request, const SessionLog& log);
 
 }  // namespace slscan::session

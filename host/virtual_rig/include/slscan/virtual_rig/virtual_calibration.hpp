@@ -1,7 +1,7 @@
 // A calibration capture of the virtual rig (slrig::calibration_poses), rendered in memory in
-// the layout calibrate_rig reads, with the truth every figure is checked against. Used by
-// `slscan demo` (which calibrates before it scans), `slscan calibrate --virtual`, the
-// calibration test and bench/rig/bench_calibrated_ballbar.
+// the layout calibrate_rig reads, with the truth every figure is checked against. Used by the
+// calibration test and the benches (bench_calibrated_ballbar, bench_metrology); `slscan` itself
+// calibrates the virtual rig through slscand's sim board, as a real scanner.
 #pragma once
 
 #include <array>
@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "slproto/calibration.hpp"
+#include "slscan/core/calibration_compare.hpp"
 #include "slscan/core/calibration_rig.hpp"
 
 namespace slrig {
@@ -37,16 +38,10 @@ VirtualCalibrationCapture render_virtual_calibration_capture(const slrig::Scene&
                                                              double table_angle_sigma_deg = 0.05,
                                                              const RenderProgress& progress = {});
 
-// The calibration's errors against the truth, in the terms (docs/calibration.md).
-struct CalibrationErrors {
-  double camera_fx_pct = 0, camera_fy_pct = 0, camera_cx_px = 0, camera_cy_px = 0, camera_rms_px = 0;
-  struct Projector {
-    double fx_pct = 0, fy_pct = 0, cx_px = 0, cy_px = 0, translation_mm = 0, rotation_deg = 0, rms_px = 0;
-  };
-  std::array<Projector, 2> projectors;
-  double axis_direction_deg = 0;
-  double axis_position_mm = 0;  // the true platform centre's distance from the fitted axis
-  double plane_mm = 0;          // the true platform centre's height above the fitted plane
+// The calibration's errors against the truth, in the terms (docs/calibration.md): the
+// difference from the rig's exact calibration, and the turntable steps against the angles the
+// table really reached.
+struct CalibrationErrors : core::CalibrationDifference {
   double worst_step_error_deg = 0;
   std::string table() const;  // one line per figure, for benches and tests
 };

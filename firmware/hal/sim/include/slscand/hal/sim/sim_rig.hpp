@@ -65,6 +65,9 @@ class SimRig {
   std::unique_ptr<Camera> make_camera();
   TurntableEmulator& turntable();
   const slrig::Scene& scene() const;
+  // The rig's exact calibration (its camera, projectors and turntable as built): what only a
+  // simulated board knows, for the demo's --true-calibration and for checking a calibration.
+  slproto::RigCalibration true_calibration() const;
 
   // "Flashes" the projectors' pattern memory and exposure (a real DLPC350 is loaded over USB
   // beforehand). Until then the projectors show the scene's own plan at the board's exposure.
