@@ -6,13 +6,13 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 
+#include "simulated_scanner.hpp"
 #include "slproto/calibration.hpp"
+#include "slscan/core/calibration_compare.hpp"
 #include "slscan/io/calibration_capture_files.hpp"
 #include "slscan/io/io_error.hpp"
 #include "slscan/session/calibration_capture.hpp"
 #include "status.hpp"
-#include "simulated_scanner.hpp"
-#include "slscan/core/calibration_compare.hpp"
 
 namespace slscan::app {
 
@@ -108,7 +108,8 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
   std::optional<slproto::RigCalibration> truth;  // --virtual: the sim board's exact calibration
   const int sources = static_cast<int>(!command.capture_dir.empty()) + static_cast<int>(!command.virtual_rig.empty()) +
                       static_cast<int>(!command.connect.empty());
-  if (sources > 1) throw std::invalid_argument("calibrate: give a capture folder, --virtual or --connect, not two of them");
+  if (sources > 1)
+    throw std::invalid_argument("calibrate: give a capture folder, --virtual or --connect, not two of them");
   if (!command.resume_dir.empty() && command.connect.empty())
     throw std::invalid_argument("calibrate: --resume continues a capture through a scanner: it needs --connect");
   if (!command.connect.empty()) {

@@ -4,10 +4,11 @@
 // checkerboard at each calibration pose and, asked, writes its exact calibration.
 #pragma once
 
+#include <sys/types.h>
+
 #include <cstdint>
 #include <filesystem>
 #include <string>
-#include <sys/types.h>
 
 namespace slscan::app {
 
@@ -19,7 +20,8 @@ std::string find_slscand(const std::string& given);
 enum class VirtualRigSize { small, full };
 
 // Writes a board file for the sim board: `template_path` ("" = boards/sim.toml of the source
-// tree, else the installed /usr/share/slscan/boards/sim.toml) with its scene, rig size and the camera format that size renders. Throws io::IoError.
+// tree, else the installed /usr/share/slscan/boards/sim.toml) with its scene, rig size and the camera format that size
+// renders. Throws io::IoError.
 void write_sim_board(const std::string& template_path, const std::string& scene, VirtualRigSize size,
                      const std::filesystem::path& board_path);
 

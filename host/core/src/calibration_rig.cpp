@@ -336,8 +336,8 @@ RigCalibrationResult calibrate_rig(const CalibrationMeasurements& measurements, 
                                std::to_string(proj_views[s].size()) + " poses, at least " +
                                std::to_string(options.min_projector_views) + " are needed" + skipped_text());
     const ProjectorSolve solve =
-        calibrate_projector(target, camera.model, proj_cam_views[s], proj_views[s], projector_width,
-                            projector_height, options.projector_lens, options.min_projector_views);
+        calibrate_projector(target, camera.model, proj_cam_views[s], proj_views[s], projector_width, projector_height,
+                            options.projector_lens, options.min_projector_views);
     cal.projectors[s] = solve.calibration;
     report.projector_views[s] = static_cast<int>(proj_views[s].size());
     report.projector_rms_px[s] = solve.calibration.reprojection_rms_px;
@@ -357,8 +357,8 @@ RigCalibrationResult calibrate_rig(const CalibrationMeasurements& measurements, 
       observations[s].start = cal.projectors[s];
       for (std::size_t p : proj_pose[s]) observations[s].camera_view.push_back(camera_view_of_pose[p]);
     }
-    const RigBundle bundle = refine_rig_jointly(target, camera, camera_views, observations, options.camera_lens,
-                                                options.projector_lens);
+    const RigBundle bundle =
+        refine_rig_jointly(target, camera, camera_views, observations, options.camera_lens, options.projector_lens);
     cal.camera = bundle.camera.model;
     cal.camera_reprojection_rms_px = bundle.camera.rms_px;
     report.camera_rms_px = bundle.camera.rms_px;

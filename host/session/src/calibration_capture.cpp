@@ -214,11 +214,10 @@ core::CalibrationMeasurements capture_calibration(const CalibrationCaptureReques
   capture.pattern_plan.axis = CodingAxis::columns;
   capture.bit_depth = bit_depth;
   capture.platform_radius_mm = request.platform_radius_mm;
-  capture.source = !request.source.empty()
-                       ? request.source
-                       : "slscan calibrate --connect " + request.scanner.host + ":" +
-                             std::to_string(request.scanner.port) + " (board '" + board.board_name() + "', " +
-                             board.software_version() + ")";
+  capture.source = !request.source.empty() ? request.source
+                                           : "slscan calibrate --connect " + request.scanner.host + ":" +
+                                                 std::to_string(request.scanner.port) + " (board '" +
+                                                 board.board_name() + "', " + board.software_version() + ")";
   if (request.resume) {
     core::CalibrationCapture have = io::read_calibration_capture(request.folder);
     check_resumed(have, capture, guide, request.folder);
@@ -240,8 +239,7 @@ core::CalibrationMeasurements capture_calibration(const CalibrationCaptureReques
     const int pose = static_cast<int>(p);
     measured.poses.push_back(capture.poses[p]);
     measured.measured.push_back(core::measure_calibration_pose(capture, pose, request.options));
-    const core::CalibrationPoseCheck check =
-        core::check_calibration_pose(measured.measured.back(), capture.target);
+    const core::CalibrationPoseCheck check = core::check_calibration_pose(measured.measured.back(), capture.target);
     width = check.width;
     height = check.height;
     if (check.board_found)
@@ -303,9 +301,8 @@ core::CalibrationMeasurements capture_calibration(const CalibrationCaptureReques
                                         guided.name + ": " + problem + "; " + where_kept(request, p));
     }
     if (!request.folder.empty()) io::write_calibration_capture_pose(capture, pose, request.folder);
-    frames_received += static_cast<std::size_t>(
-        std::count_if(capture.frames.begin(), capture.frames.end(),
-                      [&](const core::CalibrationFrame& f) { return f.pose == pose; }));
+    frames_received += static_cast<std::size_t>(std::count_if(
+        capture.frames.begin(), capture.frames.end(), [&](const core::CalibrationFrame& f) { return f.pose == pose; }));
     release_images(capture, pose);
   }
   scanner.connection.close();

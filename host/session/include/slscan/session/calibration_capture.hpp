@@ -37,8 +37,8 @@ struct CalibrationCaptureRequest {
   std::uint32_t pattern_period_us = 10000;
   std::uint32_t settle_ms = 200;
   std::chrono::milliseconds stall_timeout{60000};  // no frame for this long: the scanner is stuck
-  std::string source;                // for the calibration file; "" = the scanner's address and board
-  core::CalibrationOptions options;  // how poses are measured (detection, projector corners, decoding)
+  std::string source;                              // for the calibration file; "" = the scanner's address and board
+  core::CalibrationOptions options;                // how poses are measured (detection, projector corners, decoding)
   double min_lit_fraction = 0.75;                  // of the board's corners, per projector (core::CalibrationPoseCheck)
   // A pose whose board lies within this share of the board's size in the image of a pose taken
   // (mean corner distance, core::too_similar_problem) is retaken, or refused with --auto; 0: no check.
