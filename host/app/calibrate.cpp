@@ -151,17 +151,19 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
     scanner.stop();
   } else {
     if (command.capture_dir.empty()) throw std::invalid_argument("calibrate: no capture folder given");
-    const core::CalibrationCapture capture = io::read_calibration_capture(command.capture_dir);
-    console.info("read " + std::to_string(capture.frames.size()) + " frames of " +
-                 std::to_string(capture.poses.size()) + " poses from " + command.capture_dir);
-    // Measured here, pose by pose with a progress line, then solved below.
+    // Read and measured pose by pose (one pose's images in memory), then solved below.
+    const io::CalibrationCaptureFolder folder(command.capture_dir);
+    const core::CalibrationCapture& capture = folder.capture();
     measured = core::measurements_of(capture);
     measured.poses = capture.poses;
     for (std::size_t p = 0; p < capture.poses.size(); ++p) {
+      const int pose = static_cast<int>(p);
       console.progress({"measuring poses", p, capture.poses.size(), "poses", capture.poses[p].name});
-      measured.measured.push_back(core::measure_calibration_pose(capture, static_cast<int>(p), options));
+      measured.measured.push_back(core::measure_calibration_pose(folder.read_pose(pose), pose, options));
     }
     console.end_progress();
+    console.info("measured " + std::to_string(capture.frames.size()) + " frames of " +
+                 std::to_string(capture.poses.size()) + " poses from " + command.capture_dir);
   }
   core::RigCalibrationResult result;
   // Poses measured, then the solves: one progress line each.

@@ -41,14 +41,27 @@ std::string frame_file(const core::CalibrationFrame& frame) {
   return name;
 }
 
-core::CalibrationCapture read_manifest(const json& doc, const std::string& origin, const std::string& folder) {
+}  // namespace
+
+CalibrationCaptureFolder::CalibrationCaptureFolder(const std::string& folder) : folder_(folder) {
+  const std::string origin = (fs::path(folder) / "manifest.json").string();
+  auto text = slproto::read_whole_file(origin);
+  if (!text) fail(origin, "cannot open (is '" + folder + "' a calibration capture folder?)");
+  try {
+    read_manifest(slproto::parse_json_strict(*text), origin);
+  } catch (const slproto::JsonFieldError& e) {
+    fail(origin, e.what());
+  }
+}
+
+void CalibrationCaptureFolder::read_manifest(const nlohmann::json& doc, const std::string& origin) {
   slproto::JsonObject r(doc, "");
   if (r.text("format") != kFormat) r.fail("format", std::string("expected \"") + kFormat + "\"");
   if (const int version = r.integer<int>("format_version"); version != kFormatVersion)
     r.fail("format_version", std::to_string(version) + " is not supported (this build reads version " +
                                  std::to_string(kFormatVersion) + ")");
 
-  core::CalibrationCapture capture;
+  core::CalibrationCapture& capture = capture_;
   slproto::JsonObject target = r.object("target");
   capture.target.squares_x = target.integer<int>("squares_x", 3, 100);
   capture.target.squares_y = target.integer<int>("squares_y", 3, 100);
@@ -64,7 +77,7 @@ core::CalibrationCapture read_manifest(const json& doc, const std::string& origi
     fail(origin, "bit_depth " + std::to_string(capture.bit_depth) + ": expected 8, 10, 12 or 16");
   capture.platform_radius_mm = r.number("platform_radius_mm");
   if (!(capture.platform_radius_mm > 0)) fail(origin, "platform_radius_mm must be > 0");
-  capture.source = folder;
+  capture.source = folder_;
   r.read("source", capture.source);
 
   const slproto::JsonArray poses = r.array("poses", 1);
@@ -77,7 +90,6 @@ core::CalibrationCapture read_manifest(const json& doc, const std::string& origi
                                                   capture.plan(slproto::CodingAxis::rows)};
   const slproto::JsonArray frames = r.array("frames", 1);
   r.finish();
-  cv::Size size;
   for (std::size_t i = 0; i < frames.size(); ++i) {
     const std::string path = frames.path_of(i);
     slproto::JsonObject f = frames.object(i);
@@ -95,33 +107,50 @@ core::CalibrationCapture read_manifest(const json& doc, const std::string& origi
     }
     const std::string name = f.text("file");
     f.finish();
-    const std::string file = (fs::path(folder) / name).string();
-    frame.image = read_image_file(file, file + " (" + path + ")");
-    if (frame.image.channels() != 1) fail(file, "expected a single-channel (grey) image");
-    const int expected_depth = capture.bit_depth > 8 ? CV_16U : CV_8U;
-    if (frame.image.depth() != expected_depth)
-      fail(file, std::string("the image is ") + (frame.image.depth() == CV_16U ? "16" : "8") +
-                     "-bit, the manifest's bit_depth is " + std::to_string(capture.bit_depth));
-    if (i == 0) size = frame.image.size();
-    if (frame.image.size() != size)
-      fail(file, std::to_string(frame.image.cols) + " x " + std::to_string(frame.image.rows) + " differs from " +
-                     std::to_string(size.width) + " x " + std::to_string(size.height) + " of the first frame");
+    files_.push_back((fs::path(folder_) / name).string());
+    entries_.push_back(path);
     capture.frames.push_back(std::move(frame));
   }
-  return capture;
 }
 
-}  // namespace
+cv::Mat CalibrationCaptureFolder::read_frame(std::size_t i) const {
+  const std::string& file = files_.at(i);
+  cv::Mat image = read_image_file(file, file + " (" + entries_[i] + ")");
+  if (image.channels() != 1) fail(file, "expected a single-channel (grey) image");
+  const int expected_depth = capture_.bit_depth > 8 ? CV_16U : CV_8U;
+  if (image.depth() != expected_depth)
+    fail(file, std::string("the image is ") + (image.depth() == CV_16U ? "16" : "8") +
+                   "-bit, the manifest's bit_depth is " + std::to_string(capture_.bit_depth));
+  if (size_.empty()) {
+    size_ = image.size();
+    size_file_ = file;
+  }
+  if (image.size() != size_)
+    fail(file, std::to_string(image.cols) + " x " + std::to_string(image.rows) + " differs from " +
+                   std::to_string(size_.width) + " x " + std::to_string(size_.height) + " of " + size_file_);
+  return image;
+}
+
+core::CalibrationCapture CalibrationCaptureFolder::read_pose(int pose) const {
+  if (pose < 0 || pose >= static_cast<int>(capture_.poses.size()))
+    throw std::invalid_argument(folder_ + ": pose " + std::to_string(pose) + " of " +
+                                std::to_string(capture_.poses.size()));
+  core::CalibrationCapture one = capture_;
+  one.frames.clear();
+  for (std::size_t i = 0; i < capture_.frames.size(); ++i) {
+    if (capture_.frames[i].pose != pose) continue;
+    core::CalibrationFrame frame = capture_.frames[i];
+    frame.image = read_frame(i);
+    one.frames.push_back(std::move(frame));
+  }
+  return one;
+}
 
 core::CalibrationCapture read_calibration_capture(const std::string& folder) {
-  const std::string origin = (fs::path(folder) / "manifest.json").string();
-  auto text = slproto::read_whole_file(origin);
-  if (!text) fail(origin, "cannot open (is '" + folder + "' a calibration capture folder?)");
-  try {
-    return read_manifest(slproto::parse_json_strict(*text), origin, folder);
-  } catch (const slproto::JsonFieldError& e) {
-    fail(origin, e.what());
-  }
+  const CalibrationCaptureFolder on_disk(folder);
+  core::CalibrationCapture capture = on_disk.capture();
+  for (std::size_t i = 0; i < capture.frames.size(); ++i) capture.frames[i].image = on_disk.read_frame(i);
+  return capture;
 }
 
 namespace {

@@ -218,10 +218,11 @@ core::CalibrationMeasurements capture_calibration(const CalibrationCaptureReques
                                            : "slscan calibrate --connect " + request.scanner.host + ":" +
                                                  std::to_string(request.scanner.port) + " (board '" +
                                                  board.board_name() + "', " + board.software_version() + ")";
+  std::optional<io::CalibrationCaptureFolder> resumed_folder;
   if (request.resume) {
-    core::CalibrationCapture have = io::read_calibration_capture(request.folder);
-    check_resumed(have, capture, guide, request.folder);
-    capture = std::move(have);
+    resumed_folder.emplace(request.folder);
+    check_resumed(resumed_folder->capture(), capture, guide, request.folder);
+    capture = resumed_folder->capture();  // the frames' entries; their images are read pose by pose below
     log.info("resuming " + request.folder + ": " + std::to_string(capture.poses.size()) + " of " +
              std::to_string(guide.size()) + " poses are there");
   } else if (!request.folder.empty() && std::filesystem::exists(request.folder)) {
@@ -238,14 +239,13 @@ core::CalibrationMeasurements capture_calibration(const CalibrationCaptureReques
   for (std::size_t p = 0; p < capture.poses.size(); ++p) {
     const int pose = static_cast<int>(p);
     measured.poses.push_back(capture.poses[p]);
-    measured.measured.push_back(core::measure_calibration_pose(capture, pose, request.options));
+    measured.measured.push_back(core::measure_calibration_pose(resumed_folder->read_pose(pose), pose, request.options));
     const core::CalibrationPoseCheck check = core::check_calibration_pose(measured.measured.back(), capture.target);
     width = check.width;
     height = check.height;
     if (check.board_found)
       taken.push_back(core::pose_footprint(capture.poses[p].name, check.camera_corners, capture.target));
   }
-  for (core::CalibrationFrame& frame : capture.frames) frame.image.release();
   const std::size_t resumed = measured.poses.size();
   std::size_t frames_received = 0;
 
