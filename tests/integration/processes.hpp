@@ -159,4 +159,33 @@ class Slscand {
   int port_ = 0;
 };
 
+// A test suite's own folder (/tmp/slscan_<suite>_<pid>) holding the sim board's exact
+// calibration as calib.json (`slscand --write-true-calibration`, boards/sim.toml: the small
+// rig); removed after the suite unless a test failed, then kept and said so. Derive as
+// `class Verify : public SuiteFolder<Verify>` (each suite its own folder).
+template <typename Suite>
+class SuiteFolder : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    const std::string suite = ::testing::UnitTest::GetInstance()->current_test_suite()->name();
+    dir_ = fs::temp_directory_path() / ("slscan_" + suite + "_" + std::to_string(::getpid()));
+    fs::create_directories(dir_);
+    const Finished truth = run({SLSCAND_BIN, "--board", std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml",
+                                "--write-true-calibration", (dir_ / "calib.json").string()},
+                               dir_ / "write-true-calibration", {}, 60s);
+    ASSERT_EQ(truth.exit_code, 0) << truth.err;
+  }
+  static void TearDownTestSuite() {
+    if (!keep_) fs::remove_all(dir_);
+  }
+  void TearDown() override {
+    if (HasFailure()) {
+      keep_ = true;
+      std::printf("keeping %s (logs, outputs) to look at\n", dir_.c_str());
+    }
+  }
+  static inline fs::path dir_;
+  static inline bool keep_ = false;
+};
+
 }  // namespace slscan::testing

@@ -26,7 +26,6 @@
 #include "slproto/capture.hpp"
 #include "slproto/handshake.hpp"
 #include "slproto/transport.hpp"
-#include "slrig/rig.hpp"
 
 namespace {
 
@@ -40,25 +39,8 @@ using slscan::testing::Slscand;
 using slscan::testing::spawn;
 using slscan::testing::wait_for;
 
-class Faults : public ::testing::Test {
+class Faults : public slscan::testing::SuiteFolder<Faults> {
  protected:
-  static void SetUpTestSuite() {
-    dir_ = fs::temp_directory_path() / ("slscan_faults_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-    auto scene = slrig::scene_preset("sphere", slrig::RigSize::small);
-    ASSERT_TRUE(scene.ok()) << scene.error().message;
-    ASSERT_TRUE(
-        slproto::save_calibration((dir_ / "calib.json").string(), slrig::ground_truth_calibration(*scene)).ok());
-  }
-  static void TearDownTestSuite() {
-    if (!keep_) fs::remove_all(dir_);
-  }
-  void TearDown() override {
-    if (HasFailure()) {
-      keep_ = true;
-      std::printf("keeping %s (logs, outputs) to look at\n", dir_.c_str());
-    }
-  }
   static std::vector<std::string> scan_args(const std::string& address, const fs::path& out,
                                             std::vector<std::string> angles = {"0"}) {
     std::vector<std::string> args{
@@ -90,9 +72,6 @@ class Faults : public ::testing::Test {
     EXPECT_TRUE(fs::exists(dir_ / name / "model.ply"));
     EXPECT_EQ(frames_in(dir_ / name / "capture.slcap"), 38u);
   }
-
-  static inline fs::path dir_;
-  static inline bool keep_ = false;
 };
 
 TEST_F(Faults, FirmwareKilledMidScanLeavesACaptureThatReprocesses) {

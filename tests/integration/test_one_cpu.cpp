@@ -26,7 +26,6 @@
 #include "processes.hpp"
 #include "slproto/calibration.hpp"
 #include "slproto/capture.hpp"
-#include "slrig/rig.hpp"
 
 #ifndef SLSCAN_SANITIZED
 #define SLSCAN_SANITIZED 0
@@ -76,25 +75,8 @@ bool memory_limits_unavailable() {
   return SLSCAN_SANITIZED || std::getenv("SLSCAN_NO_MEMORY_LIMIT") != nullptr;  // NOLINT(concurrency-mt-unsafe)
 }
 
-class OneCpu : public ::testing::Test {
+class OneCpu : public slscan::testing::SuiteFolder<OneCpu> {
  protected:
-  static void SetUpTestSuite() {
-    dir_ = fs::temp_directory_path() / ("slscan_one_cpu_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-    auto scene = slrig::scene_preset("sphere", slrig::RigSize::small);
-    ASSERT_TRUE(scene.ok()) << scene.error().message;
-    ASSERT_TRUE(
-        slproto::save_calibration((dir_ / "calib.json").string(), slrig::ground_truth_calibration(*scene)).ok());
-  }
-  static void TearDownTestSuite() {
-    if (!keep_) fs::remove_all(dir_);
-  }
-  void TearDown() override {
-    if (HasFailure()) {
-      keep_ = true;
-      std::printf("keeping %s (logs, outputs) to look at\n", dir_.c_str());
-    }
-  }
   // The default six angles: more projector-views (12) than decoders in flight (8).
   static std::vector<std::string> scan_args(const std::string& address, const fs::path& out) {
     return {SLSCAN_BIN,    "scan",       "--connect",     address, "--calib",     (dir_ / "calib.json").string(),
@@ -132,9 +114,6 @@ class OneCpu : public ::testing::Test {
     ASSERT_TRUE(fs::exists(b)) << b;
     EXPECT_TRUE(read_text(a) == read_text(b)) << a << " and " << b << " differ";
   }
-
-  static inline fs::path dir_;
-  static inline bool keep_ = false;
 };
 
 TEST_F(OneCpu, ScanAndReprocessCompleteAndMatchTwoCpus) {

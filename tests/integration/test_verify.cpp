@@ -10,7 +10,6 @@
 
 #include "processes.hpp"
 #include "slproto/calibration.hpp"
-#include "slrig/rig.hpp"
 
 namespace {
 
@@ -21,27 +20,16 @@ using slscan::testing::read_text;
 using slscan::testing::run;
 using slscan::testing::Slscand;
 
-class Verify : public ::testing::Test {
+class Verify : public slscan::testing::SuiteFolder<Verify> {
  protected:
   static void SetUpTestSuite() {
-    dir_ = fs::temp_directory_path() / ("slscan_verify_" + std::to_string(::getpid()));
-    fs::create_directories(dir_);
-    auto scene = slrig::scene_preset("sphere", slrig::RigSize::small);
-    ASSERT_TRUE(scene.ok()) << scene.error().message;
-    slproto::RigCalibration calibration = slrig::ground_truth_calibration(*scene);
-    ASSERT_TRUE(slproto::save_calibration((dir_ / "calib.json").string(), calibration).ok());
-    for (auto& projector : calibration.projectors)
+    SuiteFolder::SetUpTestSuite();
+    // The same rig with both projectors 0.5 % farther from the camera: a calibration gone wrong.
+    auto calibration = slproto::load_calibration((dir_ / "calib.json").string());
+    ASSERT_TRUE(calibration.ok()) << calibration.error().message;
+    for (auto& projector : calibration->projectors)
       for (double& t : projector.cam_from_proj.t) t *= 1.005;
-    ASSERT_TRUE(slproto::save_calibration((dir_ / "bumped.json").string(), calibration).ok());
-  }
-  static void TearDownTestSuite() {
-    if (!keep_) fs::remove_all(dir_);
-  }
-  void TearDown() override {
-    if (HasFailure()) {
-      keep_ = true;
-      std::printf("keeping %s (logs, outputs) to look at\n", dir_.c_str());
-    }
+    ASSERT_TRUE(slproto::save_calibration((dir_ / "bumped.json").string(), *calibration).ok());
   }
   // Three views keep the test short; the sphere is whole in them.
   static Finished verify(const Slscand& daemon, const std::string& calibration, const std::string& out,
@@ -53,8 +41,6 @@ class Verify : public ::testing::Test {
     args.insert(args.end(), limits.begin(), limits.end());
     return run(args, dir_ / out);
   }
-  static inline fs::path dir_;
-  static inline bool keep_ = false;
 };
 
 TEST_F(Verify, TheExactCalibrationHoldsAndABumpedProjectorFails) {
