@@ -47,8 +47,7 @@ int run_demo(const DemoCommand& command, const Console& console) {
     calibrate.board_path = command.board_path;
     calibrate.output_path = calibration_path;
     calibrate.report_path = (out / "calibration_report.json").string();
-    Console calibration_console = console;
-    if (const int rc = run_calibrate(calibrate, calibration_console); rc != exit_ok) return rc;
+    if (const int rc = run_calibrate(calibrate, console); rc != exit_ok) return rc;
   }
 
   console.info("starting slscand on the sim board (scene '" + command.scene + "', " +

@@ -54,6 +54,7 @@ std::string last_line(const fs::path& path) {
 pid_t spawn(const std::vector<std::string>& args, posix_spawn_file_actions_t& actions) {
   std::vector<std::string> copy = args;
   std::vector<char*> argv;
+  argv.reserve(copy.size() + 1);
   for (auto& a : copy) argv.push_back(a.data());
   argv.push_back(nullptr);
   pid_t pid = -1;
@@ -100,7 +101,10 @@ void write_sim_board(const std::string& template_path, const std::string& scene,
       if (line.substr(0, key.size()) == key) {
         const std::size_t rest = line.find_first_not_of(" \t", key.size());
         if (rest != std::string_view::npos && line[rest] == '=') {
-          board.replace(at, end - at, key + " = " + value);
+          std::string assignment = key;
+          assignment += " = ";
+          assignment += value;
+          board.replace(at, end - at, assignment);
           return;
         }
       }
