@@ -27,6 +27,7 @@
 #include <thread>
 
 #include "slproto/calibration.hpp"
+#include "slproto/file_util.hpp"
 #include "slproto/pattern_plan.hpp"
 #include "slrig/rig.hpp"
 
@@ -60,12 +61,13 @@ Finished run(std::vector<std::string> args, const fs::path& log_stem, std::chron
   posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
   posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
   std::vector<char*> argv;
+  argv.reserve(args.size() + 1);
   for (auto& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);
   pid_t pid = -1;
   const int rc = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ);
   posix_spawn_file_actions_destroy(&actions);
-  if (rc != 0) throw std::runtime_error("cannot start " + args[0] + ": " + std::strerror(rc));
+  if (rc != 0) throw std::runtime_error("cannot start " + args[0] + ": " + slproto::errno_text(rc));
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   int status = 0;
   while (::waitpid(pid, &status, WNOHANG) == 0) {
@@ -92,6 +94,7 @@ class Slscand {
     posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     std::vector<std::string> args{SLSCAND_BIN, "--board", board, "--port", "0", "--no-realtime"};
     std::vector<char*> argv;
+    argv.reserve(args.size() + 1);
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
     const int rc = posix_spawn(&pid_, argv[0], &actions, nullptr, argv.data(), environ);
@@ -99,7 +102,7 @@ class Slscand {
     ::close(out[1]);
     if (rc != 0) {
       ::close(out[0]);
-      throw std::runtime_error(std::string("cannot start slscand: ") + std::strerror(rc));
+      throw std::runtime_error(std::string("cannot start slscand: ") + slproto::errno_text(rc));
     }
     // slscand prints "... listening on ADDR:PORT" when it accepts connections.
     std::string line;
@@ -533,7 +536,7 @@ TEST_F(LiveScan, ReportHtmlDrawsTheCloudInHeadlessChromium) {
   std::set<int> levels;
   for (int y = area.y; y < area.y + area.height; ++y)
     for (int x = area.x; x < area.x + area.width; ++x) {
-      const cv::Vec3b p = image.at<cv::Vec3b>(y, x);
+      const cv::Vec3b& p = image.at<cv::Vec3b>(y, x);
       if (std::abs(p[0] - background[0]) + std::abs(p[1] - background[1]) + std::abs(p[2] - background[2]) > 12) {
         ++covered;
         levels.insert((p[0] + p[1] + p[2]) / 3);
