@@ -150,13 +150,13 @@ TEST(CalibrationCoverage, CellsCoveredCountTheCellCentresInsideTheBoards) {
   EXPECT_EQ(c.cells, 48);
   EXPECT_EQ(c.cells_covered, 12);
   EXPECT_FALSE(c.has_depth);
-  EXPECT_EQ(c.summary(), "image 12 of 48 cells (25 %); depth after 3 poses over 1 pose");
+  EXPECT_EQ(c.summary(), "image 12 of 48 cells (25 %) over 1 pose; depth known from 3 poses on");
   // A second board over [250, 470] x [10, 230] holds 3 x 3 centres, one column of them the
   // first board's: 6 more cells.
   poses.push_back(grid("b", 250, 10, 470, 230));
   c = pose_set_coverage(target, poses, 640, 480);
   EXPECT_EQ(c.cells_covered, 12 + 6);
-  EXPECT_EQ(c.summary(), "image 18 of 48 cells (38 %); depth after 3 poses over 2 poses");
+  EXPECT_EQ(c.summary(), "image 18 of 48 cells (38 %) over 2 poses; depth known from 3 poses on");
   EXPECT_THROW(pose_set_coverage(target, poses, 0, 480), std::invalid_argument);
 }
 

@@ -81,14 +81,12 @@ std::string too_similar_problem(const PoseFootprint& pose, const std::vector<Pos
 }
 
 std::string PoseSetCoverage::summary() const {
-  std::string out = "image " + std::to_string(cells_covered) + " of " + std::to_string(cells) + " cells (" +
-                    fixed(100.0 * covered_fraction(), 0) + " %); ";
-  if (has_depth)
-    out += "depth " + fixed(nearest_mm, 0) + "-" + fixed(farthest_mm, 0) + " mm (" +
-           fixed(farthest_mm - nearest_mm, 0) + " mm)";
-  else
-    out += "depth " + depth_note;
-  return out + " over " + std::to_string(poses) + (poses == 1 ? " pose" : " poses");
+  const std::string image = "image " + std::to_string(cells_covered) + " of " + std::to_string(cells) + " cells (" +
+                            fixed(100.0 * covered_fraction(), 0) + " %)";
+  const std::string over = " over " + std::to_string(poses) + (poses == 1 ? " pose" : " poses");
+  if (!has_depth) return image + over + "; depth " + depth_note;
+  return image + "; depth " + fixed(nearest_mm, 0) + "-" + fixed(farthest_mm, 0) + " mm (" +
+         fixed(farthest_mm - nearest_mm, 0) + " mm)" + over;
 }
 
 PoseSetCoverage pose_set_coverage(const CheckerboardTarget& target, const std::vector<PoseFootprint>& poses, int width,
@@ -121,7 +119,7 @@ PoseSetCoverage pose_set_coverage(const CheckerboardTarget& target, const std::v
 
   constexpr std::size_t kMinViews = 3;
   if (poses.size() < kMinViews) {
-    out.depth_note = "after " + std::to_string(kMinViews) + " poses";
+    out.depth_note = "known from " + std::to_string(kMinViews) + " poses on";
     return out;
   }
   std::vector<TargetView> views;
