@@ -7,8 +7,10 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
 
 #include "rig_test_util.hpp"
+#include "slproto/calibration_file.hpp"
 
 namespace slrig {
 namespace {
@@ -172,6 +174,28 @@ TEST(SceneFile, FormatThenParseIsIdentity) {
   }
 }
 
+// The camera in a scene file is spelled as in a calibration file (slproto's writer), and the
+// older array form of the distortion still reads as the same model.
+TEST(SceneFile, CamerasUseTheCalibrationFilesSpellingAndTheOlderArrayReads) {
+  const Scene scene = scene_preset("ballbar", RigSize::small).value();
+  const nlohmann::json written = nlohmann::json::parse(format_scene(scene));
+  EXPECT_EQ(written["camera"], slproto::pinhole_to_json(scene.camera));
+  EXPECT_EQ(written["turntable"]["cam_from_table"], slproto::pose_to_json(scene.turntable.cam_from_table));
+  auto as_object = parse_scene(R"({"preset": "ballbar", "size": "small",
+                                   "camera": {"distortion": {"k1": -0.1, "k2": 0.02, "p1": 0.001, "p2": -0.002, "k3": 0}}})");
+  auto as_array = parse_scene(R"({"preset": "ballbar", "size": "small",
+                                  "camera": {"distortion": [-0.1, 0.02, 0.001, -0.002, 0]}})");
+  ASSERT_TRUE(as_object.ok()) << as_object.error().message;
+  ASSERT_TRUE(as_array.ok()) << as_array.error().message;
+  EXPECT_EQ(as_object->camera.distortion.k1, -0.1);
+  EXPECT_EQ(as_object->camera.distortion.p2, -0.002);
+  EXPECT_EQ(as_object->camera, as_array->camera);
+  auto typo = parse_scene(R"({"camera": {"distortion": {"k4": 0.1}}})", "scene.json");
+  ASSERT_FALSE(typo.ok());
+  EXPECT_NE(typo.error().message.find("camera.distortion.k4: unknown field"), std::string::npos)
+      << typo.error().message;
+}
+
 TEST(SceneFile, PresetWithOverridesAndErrorsNamingTheField) {
   auto scene = parse_scene(R"({"preset": "sphere", "size": "small", "sensor": {"noise": false, "seed": 7},
                                "objects": [{"kind": "sphere", "radius": 12, "pose": {"rotation_deg": [0, 0, 90], "t": [10, 0, 12]}}]})");
@@ -302,7 +326,7 @@ TEST_F(MeshFile, BadFilesAreClearErrors) {
        {std::tuple<std::string, std::string, std::string>{"bad.obj", "v 0 0 0\nf 1 2 3\n", "out of range"},
         {"short.stl", "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n", "multiple of 3"},
         {"big.ply", "ply\nformat binary_big_endian 1.0\nelement vertex 0\nend_header\n", "binary_big_endian"},
-        {"cut.ply", cube_ascii_ply().substr(0, 200), "ends early"},
+        {"cut.ply", cube_ascii_ply().substr(0, 200), "truncated"},
         {"cube.xyz", "1 2 3\n", "extension"}}) {
     mesh.mesh_path = write(name, bytes);
     scene.objects = {mesh};

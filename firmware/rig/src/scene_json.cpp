@@ -8,6 +8,7 @@
 #include <set>
 #include <sstream>
 
+#include "slproto/calibration_file.hpp"
 #include "slproto/json_fields.hpp"
 #include "slrig/rig.hpp"
 
@@ -130,8 +131,20 @@ void read_pinhole(Reader& parent, const std::string& key, slproto::PinholeModel&
   r.number("cx", m.cx);
   r.number("cy", m.cy);
   if (const json* d = r.get("distortion")) {
-    const auto k = r.numbers("distortion", *d, 5);
-    m.distortion = {k[0], k[1], k[2], k[3], k[4]};
+    if (d->is_object()) {
+      // slproto's spelling (calibration files): {"k1": ..., "k2": ..., "p1": ..., "p2": ..., "k3": ...}.
+      Reader k(*d, r.child_path("distortion"));
+      k.number("k1", m.distortion.k1);
+      k.number("k2", m.distortion.k2);
+      k.number("p1", m.distortion.p1);
+      k.number("p2", m.distortion.p2);
+      k.number("k3", m.distortion.k3);
+      k.finish();
+    } else {
+      // Scene files written before format_scene used slproto's spelling: [k1, k2, p1, p2, k3].
+      const auto k = r.numbers("distortion", *d, 5);
+      m.distortion = {k[0], k[1], k[2], k[3], k[4]};
+    }
   }
   r.finish();
 }
@@ -340,19 +353,6 @@ Scene read_scene(const json& root, const std::string& base_dir) {
   return scene;
 }
 
-json pose_json(const slproto::RigidTransform& T) { return {{"R", T.R}, {"t", T.t}}; }
-
-json pinhole_json(const slproto::PinholeModel& m) {
-  const auto& d = m.distortion;
-  return {{"width", m.width},
-          {"height", m.height},
-          {"fx", m.fx},
-          {"fy", m.fy},
-          {"cx", m.cx},
-          {"cy", m.cy},
-          {"distortion", {d.k1, d.k2, d.p1, d.p2, d.k3}}};
-}
-
 }  // namespace
 
 slproto::Result<Scene> parse_scene(std::string_view json_text, std::string_view origin) {
@@ -393,7 +393,7 @@ std::string format_scene(const Scene& scene) {
   json root;
   root["format_version"] = kSceneFormatVersion;
   root["name"] = scene.name;
-  root["camera"] = pinhole_json(scene.camera);
+  root["camera"] = slproto::pinhole_to_json(scene.camera);
   const SensorModel& s = scene.sensor;
   root["sensor"] = {{"bit_depth", s.bit_depth},
                     {"full_well_electrons", s.full_well_electrons},
@@ -408,15 +408,15 @@ std::string format_scene(const Scene& scene) {
   for (std::size_t i = 0; i < 2; ++i) {
     const ProjectorModel& p = scene.projectors[i];
     projectors.push_back({{"side", i == 0 ? "left" : "right"},
-                          {"intrinsics", pinhole_json(p.intrinsics)},
-                          {"cam_from_proj", pose_json(p.cam_from_proj)},
+                          {"intrinsics", slproto::pinhole_to_json(p.intrinsics)},
+                          {"cam_from_proj", slproto::pose_to_json(p.cam_from_proj)},
                           {"gamma", p.gamma},
                           {"defocus_sigma_px", p.defocus_sigma_px},
                           {"brightness", p.brightness}});
   }
   root["projectors"] = projectors;
   const TurntableModel& t = scene.turntable;
-  root["turntable"] = {{"cam_from_table", pose_json(t.cam_from_table)},
+  root["turntable"] = {{"cam_from_table", slproto::pose_to_json(t.cam_from_table)},
                        {"platform_radius_mm", t.platform_radius_mm},
                        {"albedo", t.albedo},
                        {"angle_error_sigma_deg", t.angle_error_sigma_deg},
@@ -424,9 +424,10 @@ std::string format_scene(const Scene& scene) {
                        {"settle_time_ms", t.settle_time_ms}};
   json objects = json::array();
   for (const SceneObject& o : scene.objects) {
-    json j = {{"kind", kind_name(o.kind)},         {"name", o.name},     {"pose", pose_json(o.table_from_object)},
-              {"on_turntable", o.on_turntable},    {"albedo", o.albedo}, {"specular", o.specular},
-              {"specular_power", o.specular_power}};
+    json j = {
+        {"kind", kind_name(o.kind)},         {"name", o.name},     {"pose", slproto::pose_to_json(o.table_from_object)},
+        {"on_turntable", o.on_turntable},    {"albedo", o.albedo}, {"specular", o.specular},
+        {"specular_power", o.specular_power}};
     switch (o.kind) {
       case ObjectKind::sphere:
         j["radius"] = o.radius;

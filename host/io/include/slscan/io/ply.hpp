@@ -5,25 +5,20 @@
 #include <string>
 #include <vector>
 
+#include "slproto/mesh_file.hpp"
 #include "slscan/core/point_cloud.hpp"
 #include "slscan/io/io_error.hpp"
 
 namespace slscan::io {
 
-// Every vertex property of a PLY file as a column of doubles, in file order; faces as index lists.
-struct PlyTable {
-  std::size_t vertex_count = 0;
-  std::vector<std::string> property_names;
-  std::vector<std::vector<double>> columns;  // columns[p][i] = property p of vertex i
-  std::vector<std::vector<std::uint32_t>> faces;
-  std::vector<std::string> comments;
-
-  // Index of a property by name, or -1.
-  int find(const std::string& name) const;
+// Every vertex property of a PLY file as a column of doubles, and its faces (slproto's reader,
+// shared with the virtual rig).
+struct PlyTable : slproto::PlyTable {
   // The column of a required property; throws IoError naming the property if it is absent.
   const std::vector<double>& column(const std::string& name) const;
 };
 
+// Throws IoError naming the file and what was wrong where.
 PlyTable read_ply_table(const std::string& path);
 
 // Reads x, y, z and, when present, nx/ny/nz, confidence, intensity and view_id.
