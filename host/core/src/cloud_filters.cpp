@@ -137,7 +137,7 @@ FilterResult statistical_outlier_removal(const PointCloud& cloud, const Statisti
   return result;
 }
 
-OrganizedOutlierResult statistical_outlier_removal(const OrganizedCloud& cloud, double focal_px,
+OrganizedOutlierResult statistical_outlier_removal(OrganizedCloud cloud, double focal_px,
                                                    const StatisticalOutlierOptions& options, int window_radius) {
   if (options.k < 1) throw std::invalid_argument("statistical_outlier_removal: k must be >= 1");
   if (!(options.std_ratio > 0)) throw std::invalid_argument("statistical_outlier_removal: std_ratio must be > 0");
@@ -185,13 +185,13 @@ OrganizedOutlierResult statistical_outlier_removal(const OrganizedCloud& cloud, 
     ++count;
   }
   OrganizedOutlierResult result;
-  result.cloud = cloud;
+  result.cloud = std::move(cloud);  // no copy when the caller moved its cloud in
   if (count < 2) return result;
   const double mean = total / static_cast<double>(count);
   const double variance = std::max(0.0, (total2 - total * mean) / static_cast<double>(count - 1));
   result.threshold = mean + options.std_ratio * std::sqrt(variance);
   for (std::size_t i = 0; i < n; ++i) {
-    if (!cloud.valid[i] || mean_distance[i] <= result.threshold) continue;
+    if (!result.cloud.valid[i] || mean_distance[i] <= result.threshold) continue;
     result.cloud.points[i] = Eigen::Vector3f(nan, nan, nan);
     result.cloud.quality[i] = 0.0f;
     result.cloud.valid[i] = 0;

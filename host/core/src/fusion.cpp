@@ -97,11 +97,10 @@ FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& r
   return result;
 }
 
-FlyingPixelResult remove_flying_pixels(const OrganizedCloud& cloud, const FlyingPixelOptions& options) {
+FlyingPixelResult remove_flying_pixels(OrganizedCloud cloud, const FlyingPixelOptions& options) {
   options.check();
   check_cloud(cloud, "flying pixel removal");
   FlyingPixelResult result;
-  result.cloud = cloud;
   const int w = cloud.width, h = cloud.height;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   static constexpr int kDirections[8][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}, {1, 1}, {-1, -1}, {1, -1}, {-1, 1}};
@@ -120,6 +119,9 @@ FlyingPixelResult remove_flying_pixels(const OrganizedCloud& cloud, const Flying
       }
     }
   });
+  // Only the depth image is read from here on: the points become the result's (no copy when
+  // the caller moves its cloud in).
+  result.cloud = std::move(cloud);
   std::ptrdiff_t offsets[8];
   for (int d = 0; d < 8; ++d) offsets[d] = kDirections[d][1] * pw + kDirections[d][0];
   const float max_abs = options.max_abs_mm, relative = options.relative;

@@ -1,6 +1,7 @@
 #include "slscan/core/scan_reconstruction.hpp"
 
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 #include <tbb/task_group.h>
 
 #include <algorithm>
@@ -63,8 +64,8 @@ void ReconstructionOptions::check() const {
     throw std::invalid_argument(
         "reconstruction options: normals need window_radius in [1, 8], max_neighbor_distance_mm > 0 and "
         "min_neighbors >= 3");
-  if (max_pending_projector_views < 1)
-    throw std::invalid_argument("reconstruction options: max_pending_projector_views must be >= 1");
+  if (max_pending_projector_views < 0)
+    throw std::invalid_argument("reconstruction options: max_pending_projector_views must be >= 0 (0: automatic)");
 }
 
 namespace {
@@ -260,22 +261,31 @@ struct ScanReconstructor::Impl {
       Impl* self;
       std::unique_ptr<ProjectorViewDecoder>* decoder;
       ~Release() { self->release_decoder(std::move(*decoder)); }
-    } release{this, &decoder};
-    if (const std::atomic<bool>* flag = stop.load(); flag != nullptr && flag->load())
-      throw ReconstructionInterrupted("wait_for_views");
+    };
     ProjectorViewReport report;
     report.present = true;
-    auto start = Clock::now();
-    DecodedView decoded = decoder->finish();
-    report.decode_ms = ms_since(start);
-    report.decode = decoded.counts;
-    start = Clock::now();
-    TriangulatedView triangulated = triangulators[static_cast<std::size_t>(projector)]->triangulate(decoded);
-    report.triangulate_ms = ms_since(start);
-    report.triangulate = triangulated.counts;
-    report.checks = std::move(decoded.checks);
-    report.coordinate_noise_px = decoded.coordinate_noise_px;
-    report.smoothing_max_deviation_px = decoded.smoothing_max_deviation_px;
+    TriangulatedView triangulated;
+    {
+      DecodedView decoded;
+      {
+        // The decoder (its frames) goes back to the pool as soon as they are decoded, or on a
+        // throw: the next projector-view can stream into it while this one is triangulated.
+        const Release release{this, &decoder};
+        if (const std::atomic<bool>* flag = stop.load(); flag != nullptr && flag->load())
+          throw ReconstructionInterrupted("wait_for_views");
+        const auto start = Clock::now();
+        decoded = decoder->finish();
+        report.decode_ms = ms_since(start);
+      }
+      report.decode = decoded.counts;
+      const auto start = Clock::now();
+      triangulated = triangulators[static_cast<std::size_t>(projector)]->triangulate(decoded);
+      report.triangulate_ms = ms_since(start);
+      report.triangulate = triangulated.counts;
+      report.checks = std::move(decoded.checks);
+      report.coordinate_noise_px = decoded.coordinate_noise_px;
+      report.smoothing_max_deviation_px = decoded.smoothing_max_deviation_px;
+    }  // the decoded planes are freed before the view is fused
     const NoiseEstimate depth_noise = estimate_depth_noise(triangulated.cloud);
     report.depth_noise_mm = depth_noise.per_point;
     report.depth_second_difference_mm = depth_noise.second_difference;
@@ -338,7 +348,7 @@ struct ScanReconstructor::Impl {
         continue;
       }
       if (options.remove_flying_pixels) {
-        FlyingPixelResult cleaned = remove_flying_pixels(view->triangulated[side]->cloud, flying_options);
+        FlyingPixelResult cleaned = remove_flying_pixels(std::move(view->triangulated[side]->cloud), flying_options);
         flying[side] = cleaned.counts;
         clouds[side] = std::move(cleaned.cloud);
       } else {
@@ -364,7 +374,7 @@ struct ScanReconstructor::Impl {
     const double fusion_ms = split();
     TurntableDenoiseResult<OrganizedCloud> denoised;
     if (options.denoise_turntable) {
-      denoised = denoise_by_turntable(fused.cloud, calibration.turntable, options.turntable_denoise);
+      denoised = denoise_by_turntable(std::move(fused.cloud), calibration.turntable, options.turntable_denoise);
     } else {
       denoised.cloud = std::move(fused.cloud);
       denoised.counts.input = denoised.counts.kept = denoised.cloud.count_valid();
@@ -373,7 +383,7 @@ struct ScanReconstructor::Impl {
     std::size_t outliers_removed = 0;
     if (options.remove_outliers) {
       OrganizedOutlierResult filtered =
-          statistical_outlier_removal(denoised.cloud, calibration.camera.fx, options.outliers);
+          statistical_outlier_removal(std::move(denoised.cloud), calibration.camera.fx, options.outliers);
       outliers_removed = filtered.removed;
       denoised.cloud = std::move(filtered.cloud);
     }
@@ -386,6 +396,9 @@ struct ScanReconstructor::Impl {
     products.points = to_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index), &normals);
     const double normals_ms = split();
     products.cloud = std::move(denoised.cloud);
+    // The albedo is in products.points; in a scan the grid is kept for the pictures and the
+    // overlap selection, which read positions and quality only (20 MB a view at full resolution).
+    if (!options.keep_projector_clouds) std::vector<float>().swap(products.cloud.intensity);
 
     std::lock_guard lock(mutex);
     view->report.flying_max_abs_mm = flying_options.max_abs_mm;
@@ -431,6 +444,8 @@ ScanReconstructor::ScanReconstructor(const slproto::RigCalibration& calibration,
   impl_->width = width;
   impl_->height = height;
   impl_->options = options;
+  if (options.max_pending_projector_views == 0)
+    impl_->options.max_pending_projector_views = tbb::this_task_arena::max_concurrency() + 1;
   auto rays = std::make_shared<const CameraRayTable>(CameraRayTable::build(calibration.camera));
   for (std::size_t side = 0; side < 2; ++side)
     impl_->triangulators[side] = std::make_unique<ProjectorTriangulator>(rays, calibration.projectors[side],
@@ -569,14 +584,15 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
   ScanResult result;
   result.stage_ms["wait_for_views"] = ms_since(start);
 
-  // Projector-views that never completed are dropped; their decoders go back to the pool.
+  // No frame comes after finish(): projector-views that never completed are dropped, and every
+  // decoder's frame store (96 MB each at full resolution) is freed before the views are
+  // registered and merged, the stages that hold every view's cloud at once.
   {
     std::lock_guard lock(s.mutex);
-    for (auto& [key, decoder] : s.receiving) {
-      s.free_decoders.push_back(std::move(decoder));
-      --s.decoders_in_flight;
-    }
+    s.decoders_in_flight -= static_cast<int>(s.receiving.size());
     s.receiving.clear();
+    s.free_decoders.clear();
+    s.free_decoders.shrink_to_fit();
   }
   begin_stage("fuse_remaining");
   start = Clock::now();

@@ -91,7 +91,7 @@ void add(TurntableDenoiseCounts& total, const TurntableDenoiseCounts& c) {
 
 }  // namespace
 
-TurntableDenoiseResult<OrganizedCloud> denoise_by_turntable(const OrganizedCloud& cloud,
+TurntableDenoiseResult<OrganizedCloud> denoise_by_turntable(OrganizedCloud cloud,
                                                             const slproto::TurntableCalibration& turntable,
                                                             const TurntableDenoiseOptions& options) {
   options.check();
@@ -100,14 +100,14 @@ TurntableDenoiseResult<OrganizedCloud> denoise_by_turntable(const OrganizedCloud
     throw std::invalid_argument("turntable denoise: organised cloud buffers do not match its size");
   const Classifier classify(turntable, options);
   TurntableDenoiseResult<OrganizedCloud> result;
-  result.cloud = cloud;
+  result.cloud = std::move(cloud);  // filtered in place: no copy when the caller moved its cloud in
   const float nan = std::numeric_limits<float>::quiet_NaN();
   tbb::combinable<TurntableDenoiseCounts> counts_by_thread;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
     TurntableDenoiseCounts& counts = counts_by_thread.local();
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      if (!cloud.valid[i]) continue;
-      const Verdict verdict = classify(cloud.points[i]);
+      if (!result.cloud.valid[i]) continue;
+      const Verdict verdict = classify(result.cloud.points[i]);
       tally(counts, verdict);
       if (verdict != Verdict::keep) {
         result.cloud.points[i] = Eigen::Vector3f(nan, nan, nan);

@@ -49,7 +49,8 @@ struct OrganizedOutlierResult {
   std::size_t removed = 0;
   double threshold = 0;
 };
-OrganizedOutlierResult statistical_outlier_removal(const OrganizedCloud& cloud, double focal_px,
+// The cloud is taken by value: a caller that no longer needs its own moves it in.
+OrganizedOutlierResult statistical_outlier_removal(OrganizedCloud cloud, double focal_px,
                                                    const StatisticalOutlierOptions& options = {},
                                                    int window_radius = 3);
 

@@ -74,10 +74,15 @@ struct ReconstructionOptions {
   // by ScanReconstructor::finish(): core does not link OpenVDB.
   bool build_mesh = true;
   MeshOptions mesh;
-  MeshFormats mesh_formats;             // which mesh files the app writes (not used by the reconstruction)
-  int max_pending_projector_views = 8;  // decoders in flight (each holds one projector-view of frames)
-  // Keep each projector's cloud (after flying-pixel removal) in ViewProducts: for accuracy
-  // studies and the per-projector reports; off in scans (two more clouds per view in memory).
+  MeshFormats mesh_formats;  // which mesh files the app writes (not used by the reconstruction)
+  // Decoders in flight, each holding one projector-view of frames (19 x 5 MP = 96 MB at full
+  // resolution). 0: the threads the process may use + 1 (one receiving while every thread
+  // decodes); more only holds more frames in memory. A live scan's frames come far slower than
+  // they decode (docs/architecture.md, "Threads"), so only a reprocess ever fills the bound.
+  int max_pending_projector_views = 0;
+  // Keep each projector's cloud (after flying-pixel removal) in ViewProducts, and the fused
+  // grid's intensity: for accuracy studies and the per-projector reports; off in scans (two
+  // more clouds per view in memory; the albedo is in ViewProducts::points).
   bool keep_projector_clouds = false;
 
   void check() const;  // throws std::invalid_argument naming the field
@@ -122,7 +127,7 @@ struct ViewReport {
 
 // What a view leaves for reports and pictures (camera frame of that view).
 struct ViewProducts {
-  OrganizedCloud cloud;                            // fused, flying pixels and turntable removed
+  OrganizedCloud cloud;  // fused, flying pixels and turntable removed; intensity only with keep_projector_clouds
   std::vector<FusionSource> source;                // per pixel
   std::array<OrganizedCloud, 2> projector_clouds;  // only with keep_projector_clouds
   PointCloud points;                               // cloud's valid points with grid normals

@@ -47,7 +47,8 @@ struct TurntableDenoiseResult {
 };
 
 // Points are in the camera frame of the turntable calibration (any view angle).
-TurntableDenoiseResult<OrganizedCloud> denoise_by_turntable(const OrganizedCloud& cloud,
+// The organised cloud is taken by value (a caller that no longer needs its own moves it in).
+TurntableDenoiseResult<OrganizedCloud> denoise_by_turntable(OrganizedCloud cloud,
                                                             const slproto::TurntableCalibration& turntable,
                                                             const TurntableDenoiseOptions& options = {});
 TurntableDenoiseResult<PointCloud> denoise_by_turntable(const PointCloud& cloud,
