@@ -177,6 +177,26 @@ TEST(ImageFile, PnmCommentsAndTiffByteOrdersAreRead) {
   EXPECT_FALSE(read_image_header(tiff).has_value());
 }
 
+// OpenCV's PNM reader ends a number at the character after it, whatever it is: "6684#98666" is
+// 6684 x 98666 to it (a '#' there starts no comment). The header is read the same way, so the
+// size checked is the size OpenCV would allocate (a fuzzer's find: it was checked as 6684 x 6).
+TEST(ImageFile, APnmNumberEndsAtTheCharacterAfterItAsInOpenCv) {
+  const std::string pgm =
+      "P2\n6684#98666\xff"
+      "66\n6\xd8\xff~";
+  const std::vector<std::uint8_t> bytes(pgm.begin(), pgm.end());
+  const auto header = read_image_header(bytes);
+  ASSERT_TRUE(header.has_value());
+  EXPECT_EQ(header->width, 6684u);
+  EXPECT_EQ(header->height, 98666u);
+  EXPECT_EQ(error_of(bytes),
+            "frame.img: the PNM header gives 6684 x 98666 pixels, more than the 134217728 an image may have");
+  // A '#' after white space still starts a comment, as in OpenCV.
+  const std::string commented = "P5 3 #2\n2\n255\n\x01\x02\x03\x04\x05\x06";
+  const cv::Mat image = decode_image(std::vector<std::uint8_t>(commented.begin(), commented.end()), "c.pgm");
+  EXPECT_EQ(image.size(), cv::Size(3, 2));
+}
+
 TEST(ImageFile, AFileIsNamedInEveryMessage) {
   const fs::path dir = fs::temp_directory_path() / ("slscan-image-file-" + std::to_string(::getpid()));
   fs::create_directories(dir);

@@ -120,6 +120,10 @@ std::optional<ImageHeader> pnm_header(Bytes b) {
       value = value * 10 + (b[at++] - '0');
     }
     if (at == first || at >= b.size()) return std::nullopt;
+    // OpenCV's PxM reader (ReadNumber) takes the character after a number as its end, whatever
+    // it is: "6684#98666" is a width of 6684 and a height of 98666 to it, not a comment. Read
+    // the same way, or the size checked here is not the size OpenCV allocates (found by fuzzing).
+    ++at;
     return value;
   };
   const auto width = number();
