@@ -37,6 +37,15 @@ struct ParseFailure {
   throw ParseFailure{code, path + ": " + what};
 }
 
+// "PATH: part part ...": appended in place (no temporaries).
+template <class... Parts>
+[[noreturn]] void fail_with(const std::string& path, const Parts&... parts) {
+  std::string message = path;
+  message += ": ";
+  ((message += parts), ...);
+  throw ParseFailure{Errc::malformed, std::move(message)};
+}
+
 std::string lower(std::string s) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   return s;
@@ -161,7 +170,7 @@ PlyHeader parse_ply_header(const std::string& path, std::istream& in) {
       long long count = -1;
       // A count that does not parse leaves 0 in `count`, so the extraction itself is checked.
       if (!(words >> element.name >> count) || count < 0 || count > (1LL << 32))
-        fail(path, where + ": malformed element line '" + line + "'");
+        fail_with(path, where, ": malformed element line '", line, "'");
       // The columns are the vertex element's: a second one would index past them.
       for (const PlyElement& earlier : header.elements) {
         if (earlier.name == element.name && (element.name == "vertex" || element.name == "face"))
@@ -179,10 +188,10 @@ PlyHeader parse_ply_header(const std::string& path, std::istream& in) {
         words >> count_type >> item_type >> property.name;
         property.is_list = true;
         if (!parse_type(count_type, property.count_type) || !parse_type(item_type, property.type))
-          fail(path, where + ": unknown list types in '" + line + "'");
+          fail_with(path, where, ": unknown list types in '", line, "'");
       } else {
         words >> property.name;
-        if (!parse_type(type, property.type)) fail(path, where + ": unknown property type '" + type + "'");
+        if (!parse_type(type, property.type)) fail_with(path, where, ": unknown property type '", type, "'");
       }
       if (property.name.empty()) fail(path, where + ": property without a name");
       header.elements.back().properties.push_back(property);
@@ -190,7 +199,7 @@ PlyHeader parse_ply_header(const std::string& path, std::istream& in) {
       if (header.format.empty()) fail(path, "header has no format line");
       return header;
     } else if (!keyword.empty()) {
-      fail(path, where + ": unknown keyword '" + keyword + "'");
+      fail_with(path, where, ": unknown keyword '", keyword, "'");
     }
   }
   fail(path, "header has no end_header", Errc::truncated);
@@ -409,7 +418,7 @@ MeshFileContents parse_obj(const std::string& path) {
         errno = 0;
         index = std::strtoll(number.c_str(), &end, 10);
         if (number.empty() || end != number.c_str() + number.size() || errno == ERANGE)
-          throw ParseFailure{Errc::malformed, where + ": bad face index '" + item + "'"};
+          fail_with(path + ":" + std::to_string(line_no), "bad face index '", item, "'");
         const auto n = static_cast<long long>(mesh.vertices.size());
         const long long resolved = index < 0 ? n + index : index - 1;
         if (resolved < 0 || resolved >= n)
