@@ -154,7 +154,8 @@ OrganizedOutlierResult statistical_outlier_removal(OrganizedCloud cloud, double 
   std::vector<float> mean_distance(n, nan);
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
     std::vector<float> d2;
-    d2.reserve(static_cast<std::size_t>((2 * window_radius + 1) * (2 * window_radius + 1)));
+    const std::size_t window_side = 2 * static_cast<std::size_t>(window_radius) + 1;
+    d2.reserve(window_side * window_side);
     for (int v = rows.begin(); v < rows.end(); ++v)
       for (int u = 0; u < w; ++u) {
         const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
