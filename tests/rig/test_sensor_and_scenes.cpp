@@ -340,6 +340,24 @@ TEST_F(MeshFile, BadFilesAreClearErrors) {
   EXPECT_FALSE(ViewRenderer::make(scene, 0, 0).ok());
 }
 
+// The blade's samples face out of the solid: by the divergence theorem the sum of p . n dA over
+// a closed surface is 3 V, positive only with outward normals. The blade is wound by hand
+// (scene_build.cpp) and was inside out until 2026-12-05: bench_mesh then counted every face of a
+// good mesh as flipped. V for a NACA xx12 section (area ~0.0822 c^2) tapering from 60 to 45 mm
+// over 120 mm: ~27,400 mm^3.
+TEST(Surfaces, TheBladesSamplesFaceOutOfTheSolid) {
+  const Scene scene = scene_preset("blade", RigSize::small).value();
+  const double spacing = 0.5;
+  const SurfaceSample s = sample_object_surfaces(scene, spacing);
+  ASSERT_FALSE(s.object_id.empty());
+  double flux = 0;
+  for (std::size_t i = 0; i < s.object_id.size(); ++i)
+    for (std::size_t k = 0; k < 3; ++k)
+      flux += static_cast<double>(s.points[3 * i + k]) * static_cast<double>(s.normals[3 * i + k]);
+  const double volume = flux * spacing * spacing / 3;
+  EXPECT_NEAR(volume, 27400, 27400 * 0.15);
+}
+
 TEST(Surfaces, SamplesLieOnTheTrueSurfaces) {
   const Scene scene = scene_preset("ballbar", RigSize::small).value();
   const SurfaceSample s = sample_object_surfaces(scene, 0.5);
