@@ -55,7 +55,7 @@ std::string fmt(const char* format, auto... args) {
 Eigen::Isometry3d to_isometry(const slproto::RigidTransform& t) {
   Eigen::Isometry3d m = Eigen::Isometry3d::Identity();
   for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) m.linear()(r, c) = t.R[static_cast<std::size_t>(3 * r + c)];
+    for (int c = 0; c < 3; ++c) m.linear()(r, c) = t.R[(3 * static_cast<std::size_t>(r)) + static_cast<std::size_t>(c)];
     m.translation()(r) = t.t[static_cast<std::size_t>(r)];
   }
   return m;
@@ -63,8 +63,10 @@ Eigen::Isometry3d to_isometry(const slproto::RigidTransform& t) {
 
 // --no-depth-smoothing: every point exactly as triangulated (ReconstructionOptions::smooth_depth);
 // --no-view-selection: every view's points in the model (ReconstructionOptions::select_best_views).
+// --decode-quadratic-radius Q: DecodeOptions::quadratic_radius (0: the 5 x 5 window mean only).
 bool g_smooth_depth = true;
 bool g_select_views = true;
+int g_quadratic_radius = slscan::core::DecodeOptions{}.quadratic_radius;
 
 struct Scan {
   std::vector<Eigen::Vector3f> model;  // the fused model in the rig's table frame
@@ -83,6 +85,7 @@ Scan scan(const slrig::Scene& scene, const slproto::RigCalibration& calibration)
   options.build_mesh = false;
   options.smooth_depth = g_smooth_depth;
   options.select_best_views = g_select_views;
+  options.decode.quadratic_radius = g_quadratic_radius;
   const int width = scene.camera.width, height = scene.camera.height;
   slscan::core::ScanReconstructor reconstructor(calibration, plan, width, height, options);
   std::vector<std::uint8_t> frame;
@@ -102,7 +105,7 @@ Scan scan(const slrig::Scene& scene, const slproto::RigCalibration& calibration)
         info.projector = side;
         info.pattern_index = p;
         info.bytes_per_pixel = bytes_per_pixel;
-        info.stride_bytes = static_cast<std::size_t>(width * bytes_per_pixel);
+        info.stride_bytes = static_cast<std::size_t>(width) * static_cast<std::size_t>(bytes_per_pixel);
         reconstructor.add_frame(info, std::as_bytes(std::span(frame)));
       }
   }
@@ -309,10 +312,12 @@ int main(int argc, char** argv) try {
       g_smooth_depth = false;
     } else if (arg == "--no-view-selection") {
       g_select_views = false;
+    } else if (arg == "--decode-quadratic-radius" && i + 1 < argc) {
+      g_quadratic_radius = std::stoi(argv[++i]);
     } else {
       std::fprintf(stderr,
                    "usage: bench_metrology [--size small|full] [--out FILE.md] [--true-calibration] [--skip-bar] "
-                   "[--no-depth-smoothing] [--no-view-selection]\n");
+                   "[--no-depth-smoothing] [--no-view-selection] [--decode-quadratic-radius Q]\n");
       return 2;
     }
   }
@@ -349,7 +354,9 @@ int main(int argc, char** argv) try {
   gethostname(host, sizeof host - 1);
   const std::time_t now = std::time(nullptr);
   char date[64];
-  std::strftime(date, sizeof date, "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  std::tm utc{};
+  gmtime_r(&now, &utc);
+  std::strftime(date, sizeof date, "%Y-%m-%d %H:%M UTC", &utc);
   md << "Measured " << date << " on the virtual rig (" << size_name << ": "
      << slrig::scene_preset("ballbar", size).value().camera.width << " x "
      << slrig::scene_preset("ballbar", size).value().camera.height

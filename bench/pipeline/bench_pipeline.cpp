@@ -19,6 +19,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <numbers>
 #include <string>
 #include <vector>
@@ -76,10 +77,11 @@ std::uint64_t read_all(const std::vector<std::vector<std::uint8_t>>& frames) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+int main(int argc, char** argv) try {
   std::string scene_name = "teacup";
   bool synthetic = false;
   int repeats = 7, threads = 2;
+  slscan::core::DecodeOptions decode_options;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg == "--scene" && i + 1 < argc) {
@@ -87,11 +89,15 @@ int main(int argc, char** argv) {
     } else if (arg == "--synthetic") {
       synthetic = true;
     } else if (arg == "--repeats" && i + 1 < argc) {
-      repeats = std::max(1, std::atoi(argv[++i]));
+      repeats = std::max(1, std::stoi(argv[++i]));
     } else if (arg == "--threads" && i + 1 < argc) {
-      threads = std::max(1, std::atoi(argv[++i]));
+      threads = std::max(1, std::stoi(argv[++i]));
+    } else if (arg == "--decode-quadratic-radius" && i + 1 < argc) {
+      decode_options.quadratic_radius = std::stoi(argv[++i]);
     } else {
-      std::fprintf(stderr, "usage: bench_pipeline [--scene NAME] [--synthetic] [--repeats N] [--threads N]\n");
+      std::fprintf(stderr,
+                   "usage: bench_pipeline [--scene NAME] [--synthetic] [--repeats N] [--threads N] "
+                   "[--decode-quadratic-radius Q]\n");
       return 2;
     }
   }
@@ -132,7 +138,8 @@ int main(int argc, char** argv) {
           const double x = 20.0 + 0.44 * u + 0.01 * v;
           const double value =
               plan.value(p, plan[p].kind == slproto::PatternKind::phase_step ? x : std::floor(x + 0.5));
-          frames[p][static_cast<std::size_t>(v * w + u)] = static_cast<std::uint8_t>(std::lround(10 + 180 * value));
+          frames[p][(static_cast<std::size_t>(v) * static_cast<std::size_t>(w)) + static_cast<std::size_t>(u)] =
+              static_cast<std::uint8_t>(std::lround(10 + 180 * value));
         }
   }
   const int width = calibration.camera.width, height = calibration.camera.height;
@@ -143,7 +150,7 @@ int main(int argc, char** argv) {
       std::make_shared<const slscan::core::CameraRayTable>(slscan::core::CameraRayTable::build(calibration.camera));
   std::printf("camera ray table (once per calibration): %.0f ms\n", ms_since(start));
   const slscan::core::ProjectorTriangulator triangulator(rays, calibration.projectors[0], plan.config().axis);
-  slscan::core::ProjectorViewDecoder decoder(plan, width, height);
+  slscan::core::ProjectorViewDecoder decoder(plan, width, height, decode_options);
   slscan::core::DecodedView decoded;
   slscan::core::OrganizedCloud cloud;
 
@@ -193,4 +200,7 @@ int main(int argc, char** argv) {
   std::printf("decoded %zu of %zu pixels, triangulated %zu (checksum %llu)\n", decoded.counts.valid,
               decoded.coordinate.size(), counts.valid, static_cast<unsigned long long>(sink % 1000));
   return 0;
+} catch (const std::exception& e) {
+  std::fprintf(stderr, "bench_pipeline: %s\n", e.what());
+  return 1;
 }

@@ -41,6 +41,7 @@ void apply_sections(const json& config, core::ReconstructionOptions& o) {
       .read("min_modulation_dn", o.decode.min_modulation_dn)
       .read("saturation_dn", o.decode.saturation_dn)
       .read("smoothing_radius", o.decode.smoothing_radius)
+      .read("quadratic_radius", o.decode.quadratic_radius)
       .read("smoothing_max_deviation_px", o.decode.smoothing_max_deviation_px)
       .finish();
   Section(top, "triangulate")
@@ -180,6 +181,7 @@ json config_to_json(const core::ReconstructionOptions& o) {
         {"min_modulation_dn", o.decode.min_modulation_dn},
         {"saturation_dn", o.decode.saturation_dn},
         {"smoothing_radius", o.decode.smoothing_radius},
+        {"quadratic_radius", o.decode.quadratic_radius},
         {"smoothing_max_deviation_px", o.decode.smoothing_max_deviation_px}}},
       {"triangulate",
        {{"newton_iterations", o.triangulate.newton_iterations},

@@ -24,6 +24,8 @@ TEST(AppConfig, AppliesValuesAndRoundTrips) {
   EXPECT_DOUBLE_EQ(options.registration.turntable_prior_mm, 0.05);  // untouched: the default
   EXPECT_FALSE(options.build_mesh);
   EXPECT_DOUBLE_EQ(options.voxel_mm, 0.2);
+  apply_config(json::parse(R"({"decode": {"quadratic_radius": 4}})"), options);
+  EXPECT_EQ(options.decode.quadratic_radius, 4);
   apply_config(json::parse(R"({"decode": {"smoothing_radius": 0}, "flying_pixels": {"enabled": false},
       "turntable_denoise": {"enabled": false}})"),
                options);
@@ -65,6 +67,7 @@ TEST(AppConfig, MisspeltOrMistypedKeysAreNamed) {
   EXPECT_THROW(apply_config(json::parse(R"({"registration": {"mode": "magic"}})"), options), std::invalid_argument);
   EXPECT_THROW(apply_config(json::parse(R"({"model": {"voxel_mm": -1}})"), options), std::invalid_argument);
   EXPECT_THROW(apply_config(json::parse(R"({"decode": {"smoothing_radius": 5}})"), options), std::invalid_argument);
+  EXPECT_THROW(apply_config(json::parse(R"({"decode": {"quadratic_radius": 2}})"), options), std::invalid_argument);
 }
 
 // Issue 17 case 6: {"registration":{"gates_mm":[1e999]}} was an internal error (exit 5). A number

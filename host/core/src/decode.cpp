@@ -6,6 +6,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -34,6 +35,8 @@ void DecodeOptions::check() const {
          std::to_string(1 << bit_depth) + " (full scale: never clipped)]");
   if (smoothing_radius < 0 || smoothing_radius > 2)
     fail("smoothing_radius " + std::to_string(smoothing_radius) + " outside [0, 2]");
+  if (quadratic_radius != 0 && (quadratic_radius < 3 || quadratic_radius > 6))
+    fail("quadratic_radius " + std::to_string(quadratic_radius) + " is not 0 (off) or in [3, 6]");
   if (!(smoothing_max_deviation_px > 0) || !std::isfinite(smoothing_max_deviation_px))
     fail("smoothing_max_deviation_px must be positive and finite");
   if (!(noise_factor >= 0) || !std::isfinite(noise_factor))
@@ -603,6 +606,98 @@ void choose_smoothed(int w, const float* __restrict centre, const float* __restr
   }
 }
 
+namespace {
+
+// One row's working buffers for quadratic_where_whole (reused across rows by each thread).
+struct QuadraticRows {
+  std::vector<double> sum, weighted;  // per column, over the window's rows
+  std::vector<float> count, value, whole;
+};
+
+// Row y's pixels whose (2 q + 1)^2 window decoded whole get the window's quadratic value, if it
+// stays within max_deviation of their own and near the value the smaller window chose
+// (`result` on entry): they differ by the curvature bias the quadratic removes (below the
+// Richardson threshold, 1.2 / B px, where the 5 x 5 mean was kept) plus noise, but by far more
+// where the wider window reaches over a depth step the smaller one does not see (a step of D
+// px in its outer column moves the quadratic by ~0.09 D).
+template <int Q>
+void quadratic_where_whole(const float* raw, const float* modulation, std::size_t uw, int y, float max_deviation,
+                           QuadraticRows& rows, float* __restrict result) {
+  constexpr int n = 2 * Q + 1;
+  // 1-D: a (2 Q + 1)-point quadratic's value at its centre is sum_i w_i z_i (Savitzky-Golay).
+  // 2-D, on {1, u, v, u^2, uv, v^2}: sum_ij ((w_i + w_j) / n - 1 / n^2) z_ij, which is
+  // sum_i (w_i / n - 1 / n^2) S_i + sum_i T_i / n over the columns' plain sums S and
+  // w-weighted sums T.
+  std::array<double, n> w_rows{}, k_across{};
+  for (int i = -Q; i <= Q; ++i) {
+    const double wi = (3.0 * (3 * Q * Q + 3 * Q - 1) - 15.0 * i * i) / ((2 * Q + 3) * (2 * Q + 1) * (2 * Q - 1));
+    w_rows[static_cast<std::size_t>(i + Q)] = wi;
+    k_across[static_cast<std::size_t>(i + Q)] = wi / n - 1.0 / (n * n);
+  }
+  constexpr double inv_n = 1.0 / n;
+  constexpr auto full = static_cast<float>(n * n);
+  constexpr float kAgreementDnPx = 1.6f;  // 2 x choose_smoothed's curvature tolerance (DN px)
+  const int w = static_cast<int>(uw);
+  rows.sum.assign(uw, 0.0);
+  rows.weighted.assign(uw, 0.0);
+  rows.count.assign(uw, 0.0f);
+  rows.value.resize(uw);
+  rows.whole.resize(uw);
+  double* __restrict sum = rows.sum.data();
+  double* __restrict weighted = rows.weighted.data();
+  float* __restrict count = rows.count.data();
+  for (int dy = -Q; dy <= Q; ++dy) {
+    const float* __restrict row = raw + static_cast<std::size_t>(y + dy) * uw;
+    const double weight = w_rows[static_cast<std::size_t>(dy + Q)];
+    for (int x = 0; x < w; ++x) {
+      const auto v = static_cast<double>(zero_if_nan(row[x]));
+      sum[x] += v;
+      weighted[x] += weight * v;
+      count[x] += row[x] == row[x] ? 1.0f : 0.0f;
+    }
+  }
+  float* __restrict value = rows.value.data();
+  float* __restrict whole = rows.whole.data();
+  for (int x = Q; x < w - Q; ++x) {
+    double fitted = 0;
+    float valid = 0;
+    for (int i = 0; i < n; ++i) {
+      fitted += k_across[static_cast<std::size_t>(i)] * sum[x - Q + i] + inv_n * weighted[x - Q + i];
+      valid += count[x - Q + i];
+    }
+    value[x] = static_cast<float>(fitted);
+    whole[x] = valid == full ? 1.0f : 0.0f;
+  }
+  const float* __restrict centre = raw + static_cast<std::size_t>(y) * uw;
+  const float* __restrict row_modulation = modulation + static_cast<std::size_t>(y) * uw;
+  for (int x = Q; x < w - Q; ++x) {
+    const float b = row_modulation[x];
+    const float agreement = kAgreementDnPx / (b > 1.0f ? b : 1.0f);
+    const float v = value[x];
+    const bool take =
+        (whole[x] == 1.0f) & (std::fabs(v - centre[x]) <= max_deviation) & (std::fabs(v - result[x]) <= agreement);
+    result[x] = take ? v : result[x];
+  }
+}
+
+void quadratic_where_whole(int q, const float* raw, const float* modulation, std::size_t uw, int y, float max_deviation,
+                           QuadraticRows& rows, float* result) {
+  switch (q) {
+    case 3:
+      return quadratic_where_whole<3>(raw, modulation, uw, y, max_deviation, rows, result);
+    case 4:
+      return quadratic_where_whole<4>(raw, modulation, uw, y, max_deviation, rows, result);
+    case 5:
+      return quadratic_where_whole<5>(raw, modulation, uw, y, max_deviation, rows, result);
+    case 6:
+      return quadratic_where_whole<6>(raw, modulation, uw, y, max_deviation, rows, result);
+    default:
+      throw std::logic_error("quadratic_radius outside [3, 6] past DecodeOptions::check()");
+  }
+}
+
+}  // namespace
+
 void ProjectorViewDecoder::smooth(DecodedView& out) {
   raw_coordinate_.swap(out.coordinate);
   out.coordinate.resize(raw_coordinate_.size());
@@ -624,8 +719,10 @@ void ProjectorViewDecoder::smooth(DecodedView& out) {
   // the centre are needed. Counts of valid pixels ride along the same way; masked (NaN)
   // pixels count as 0. Each row's sums are computed from its own window only (no running
   // sums across rows), so the result does not depend on how TBB splits the rows.
+  const int q = options_.quadratic_radius;
   struct Columns {
     std::vector<double> narrow, wide;
+    QuadraticRows quadratic;
     std::vector<float> narrow_count, wide_count;
     std::vector<float> mean_wide, mean_narrow, window_count_wide, window_count_narrow;
     std::vector<float> needs_fit;  // 1 where the plane fit decides (float: one element width)
@@ -722,6 +819,8 @@ void ProjectorViewDecoder::smooth(DecodedView& out) {
         if (plane_fit_at_centre(raw, uw, x, y, r, value) && std::fabs(value) <= max_deviation)
           result[x] = centre[x] + value;
       }
+      if (q > 0 && y >= q && y < h - q && w > 2 * q)
+        quadratic_where_whole(q, raw, quality, uw, y, max_deviation, columns.quadratic, result);
     }
   });
 }

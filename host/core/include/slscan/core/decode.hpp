@@ -59,6 +59,16 @@ struct DecodeOptions {
   // depth edges; then the 3 x 3 mean, then the raw value). 0 turns it off. Sensor noise in the
   // phase is the largest per-pixel error on the rig; a 5 x 5 window divides it by ~5.
   int smoothing_radius = 2;
+  // Where the whole (2 q + 1)^2 window around a pixel decoded, its value is instead the centre
+  // of a least-squares quadratic surface through the window (a 2-D Savitzky-Golay kernel), if
+  // that agrees with the 5 x 5 value within 1.6 / B px (and passes the same deviation gate). A
+  // window mean is biased by the coordinate's curvature (its Laplacian times the window's
+  // second moment): on the full rig's spheres the 5 x 5 mean puts every point ~4.5 um inside,
+  // so each sphere measures ~12 um small (PS). The quadratic is unbiased there and, at q = 4
+  // (9 x 9), as quiet as the 5 x 5 mean (variance 0.044 vs 0.040 of a pixel's). Off (0) by
+  // default: with it the registered blade model reads worse (registration, not the views: see
+  // docs/accuracy.md, "PS"). Otherwise 3 to 6, and only with smoothing on.
+  int quadratic_radius = 0;
   float smoothing_max_deviation_px = 0.25f;
   // Noise-adaptive gate: the deviation limit is at least noise_factor x the view's own
   // coordinate noise (noise_estimate.hpp, from the unsmoothed coordinate of the better-lit
