@@ -2,7 +2,8 @@
 # Sets everything up on a fresh Debian 12 machine and runs every test:
 #   1. installs the Debian packages (scripts/bootstrap.sh, idempotent)
 #   2. dev build (warnings as errors) and the full CTest suite
-#   3. ASan + UBSan build and the same suite, less the README check (label "docs") and "product"
+#   3. ASan + UBSan build and the same suite, less the README check (label "docs"), "product" and
+#      the three longest tests (their code runs under ASan in their siblings; see below)
 #   4. the libgpiod v2 GPIO backend, compiled and unit-tested against bookworm-backports' 2.x
 #   5. the firmware cross-built for aarch64 (scripts/cross-build.sh arm64): slscand must be an
 #      aarch64 ELF, and the firmware tests run under qemu-user
@@ -36,8 +37,16 @@ if [ "${SLSCAN_SKIP_ASAN:-0}" != 1 ]; then
   cmake --preset asan >/dev/null
   cmake --build --preset asan -j "$jobs"
   # Without the "docs" tests (the README's commands run as written: each is tested on its own) and
-  # the "product" ones (whole-product runs of parts the other tests check under the sanitizers).
-  ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 ctest --preset asan -LE "docs|product"
+  # the "product" ones (whole-product runs of parts the other tests check under the sanitizers),
+  # and without the three longest (2-4 minutes each under the sanitizers), whose code runs there
+  # in their siblings: the rig's whole calibration (CalibrateConnect.Disconnect... solves one
+  # through slscand, CalibrationSolve.* each solver), the six wrong foreign descriptions
+  # (ForeignConventions' axis and offset cases import and detect the same way), the one-CPU
+  # scan against two (OneCpu's Ctrl-C cases scan and reprocess on one CPU).
+  heavy='^(CalibrationRig\.RecoversTheRigsTruth|ForeignConventions\.EveryWrongDescriptionIsCaughtAndDetectFindsTheRightOne'
+  heavy+='|OneCpu\.ScanAndReprocessCompleteAndMatchTwoCpus)$'
+  ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
+    ctest --preset asan -LE "docs|product" -E "$heavy"
 fi
 
 if [ "${SLSCAN_SKIP_GPIOD2:-0}" != 1 ]; then
