@@ -28,7 +28,11 @@ jobs=$(nproc)
 step() { printf '\n==== [%ds] %s\n' "$SECONDS" "$*"; }
 
 step "dev build + tests"
-cmake --preset dev >/dev/null
+# In CI (CI=true) the dev build carries line tables only (-g1, as the sanitizer build): ~20 % less
+# compile time; a developer's own run keeps the preset's full -g for the debugger.
+dev_flags=()
+if [ "${CI:-}" = true ]; then dev_flags=(-DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -g1 -DNDEBUG"); fi
+cmake --preset dev "${dev_flags[@]}" >/dev/null
 cmake --build --preset dev -j "$jobs"
 ctest --preset dev
 
