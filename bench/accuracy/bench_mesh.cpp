@@ -8,6 +8,9 @@
 // as it comes, trimmed by its densities (Open3D's way) and trimmed to the data (our raw mode's
 // rule), measured by the same code (docs/mesh.md, "Against Open3D's screened Poisson").
 //   bench_mesh [--size small|full] [--scenes ballbar,sphere,blade,teacup] [--cache DIR] [--repeats N]
+//              [--dump DIR]
+// --dump writes, per scene, the signed distance to the truth of every model point and of every
+// measured vertex of each mesh (CSV x,y,z,distance_um, rig frame), to see where the error sits.
 // --cache keeps each scene's model (PLY, rig frame) so that a second run meshes only.
 // --repeats N meshes each row N times and prints the fastest (wall; the machine is shared), with
 // the CPU time of all threads of that run.
@@ -20,10 +23,13 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <limits>
+#include <map>
 #include <memory>
 #include <numbers>
 #include <span>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -110,20 +116,28 @@ struct Figures {
   double bad_face_percent = 0, flipped_face_percent = 0;
 };
 
+// Signed distance to the truth along the nearest sample's normal (samples within 1 mm), NaN
+// where no sample is that near.
+double signed_distance(const Eigen::Vector3f& p, const Truth& truth) {
+  float d2 = 0;
+  const std::int64_t k = truth.index->nearest_within(p, 1.0f, d2);
+  if (k < 0) return std::numeric_limits<double>::quiet_NaN();
+  const auto i = static_cast<std::size_t>(k);
+  return static_cast<double>(truth.normals[i].dot(p - truth.points[i]));
+}
+
 // Distances of `points` to the truth (along the nearest sample's normal, samples within 1 mm).
 Figures distances(const std::vector<Eigen::Vector3f>& points, const Truth& truth) {
   Figures f;
   std::vector<double> d;
   d.reserve(points.size());
   for (const auto& p : points) {
-    float d2 = 0;
-    const std::int64_t k = truth.index->nearest_within(p, 1.0f, d2);
-    if (k < 0) {
+    const double s = signed_distance(p, truth);
+    if (std::isnan(s)) {
       ++f.far;
       continue;
     }
-    const auto i = static_cast<std::size_t>(k);
-    d.push_back(std::abs(static_cast<double>(truth.normals[i].dot(p - truth.points[i]))));
+    d.push_back(std::abs(s));
   }
   f.compared = d.size();
   if (d.empty()) return f;
@@ -135,15 +149,34 @@ Figures distances(const std::vector<Eigen::Vector3f>& points, const Truth& truth
   return f;
 }
 
+// The vertices of the measured (not filled) faces.
+std::vector<Eigen::Vector3f> measured_vertices(const slscan::core::TriangleMesh& mesh) {
+  std::vector<std::uint8_t> used(mesh.vertices.size(), 0);
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+    if (mesh.filled.empty() || !mesh.filled[t])
+      for (const auto v : mesh.triangles[t]) used[v] = 1;
+  std::vector<Eigen::Vector3f> vertices;
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
+    if (used[i]) vertices.push_back(mesh.vertices[i]);
+  return vertices;
+}
+
+void dump_distances(const std::filesystem::path& file, const std::vector<Eigen::Vector3f>& points, const Truth& truth) {
+  std::FILE* out = std::fopen(file.c_str(), "w");
+  if (out == nullptr) throw std::runtime_error("bench_mesh: cannot write " + file.string());
+  std::fprintf(out, "x,y,z,distance_um\n");
+  for (const auto& p : points)
+    std::fprintf(out, "%.4f,%.4f,%.4f,%.2f\n", p.x(), p.y(), p.z(), 1e3 * signed_distance(p, truth));
+  if (std::fclose(out) != 0) throw std::runtime_error("bench_mesh: cannot write " + file.string());
+}
+
 Figures mesh_figures(const slscan::core::TriangleMesh& mesh, const Truth& truth) {
   // Vertices of measured (not filled) faces only.
-  std::vector<std::uint8_t> used(mesh.vertices.size(), 0);
   std::size_t faces = 0, bad = 0, flipped = 0;
   const double cos10 = std::cos(10 * std::numbers::pi / 180);
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
     if (!mesh.filled.empty() && mesh.filled[t]) continue;
     const auto& tri = mesh.triangles[t];
-    for (const auto v : tri) used[v] = 1;
     const Eigen::Vector3f a = mesh.vertices[tri[0]], b = mesh.vertices[tri[1]], c = mesh.vertices[tri[2]];
     const Eigen::Vector3f n = (b - a).cross(c - a).normalized();
     float d2 = 0;
@@ -154,10 +187,7 @@ Figures mesh_figures(const slscan::core::TriangleMesh& mesh, const Truth& truth)
     if (cosine < cos10) ++bad;
     if (cosine < 0) ++flipped;
   }
-  std::vector<Eigen::Vector3f> vertices;
-  for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
-    if (used[i]) vertices.push_back(mesh.vertices[i]);
-  Figures f = distances(vertices, truth);
+  Figures f = distances(measured_vertices(mesh), truth);
   f.bad_face_percent = faces ? 100.0 * static_cast<double>(bad) / static_cast<double>(faces) : 0;
   f.flipped_face_percent = faces ? 100.0 * static_cast<double>(flipped) / static_cast<double>(faces) : 0;
   return f;
@@ -327,7 +357,7 @@ void open3d_rows(const std::string& scene, const slscan::core::PointCloud& model
 }  // namespace
 
 static int run_bench(int argc, char** argv) {
-  std::string size_name = "small", cache;
+  std::string size_name = "small", cache, dump;
   int repeats = 1;
   std::vector<std::string> scenes{"ballbar", "sphere", "blade", "teacup"};
   for (int i = 1; i < argc; ++i) {
@@ -336,6 +366,8 @@ static int run_bench(int argc, char** argv) {
       size_name = argv[++i];
     } else if (arg == "--cache" && i + 1 < argc) {
       cache = argv[++i];
+    } else if (arg == "--dump" && i + 1 < argc) {
+      dump = argv[++i];
     } else if (arg == "--repeats" && i + 1 < argc) {
       char* end = nullptr;
       const long n = std::strtol(argv[++i], &end, 10);
@@ -349,7 +381,8 @@ static int run_bench(int argc, char** argv) {
       std::stringstream list(argv[++i]);
       for (std::string s; std::getline(list, s, ',');) scenes.push_back(s);
     } else {
-      std::fprintf(stderr, "usage: bench_mesh [--size small|full] [--scenes a,b] [--cache DIR] [--repeats N]\n");
+      std::fprintf(stderr,
+                   "usage: bench_mesh [--size small|full] [--scenes a,b] [--cache DIR] [--repeats N] [--dump DIR]\n");
       return 2;
     }
   }
@@ -393,6 +426,12 @@ static int run_bench(int argc, char** argv) {
     }
     truth.index = std::make_unique<slscan::core::PointIndex>(truth.points);
     const Figures points = distances(model.points, truth);
+    std::string dump_stem = name;
+    dump_stem.append("_").append(size_name);
+    if (!dump.empty()) {
+      std::filesystem::create_directories(dump);
+      dump_distances(std::filesystem::path(dump) / (dump_stem + "_points.csv"), model.points, truth);
+    }
     std::printf("| %s | points (%zu) | %.1f / %.0f | | | %zu | | |\n", name.c_str(), model.size(), points.rms_um,
                 points.p99_um, points.far);
     // Our raw mode's trim distance, applied to Open3D's mesh too (unused without Open3D).
@@ -411,12 +450,39 @@ static int run_bench(int argc, char** argv) {
       char extra[256];
       std::snprintf(extra, sizeof extra,
                     "cell %.3f mm; CGAL: %s, %zu self-intersecting pairs, %zu refused; holes %zu filled %zu open; "
-                    "%zu filled faces",
+                    "%zu filled faces; %zu crossing triangles cut%s",
                     result.cell_mm, check.closed ? "closed" : "open", check.self_intersections,
                     check.rejected_triangles, result.stats.holes_filled, result.stats.holes_left_open,
-                    result.stats.filled_triangles);
+                    result.stats.filled_triangles, result.stats.crossing_triangles,
+                    result.stats.sides_separated ? "" : "; fit over both sides (fallback)");
       // trim_factor x max(cell, spacing); the cell is at least the spacing with the default options.
       if (mode == slscan::core::MeshMode::raw) raw_trim_mm = options.trim_factor * result.cell_mm;
+      if (!dump.empty()) {
+        std::vector<Eigen::Vector3f> crossing;
+        for (const std::size_t t : slscan::mesh::self_intersecting_triangles(result.mesh)) {
+          const auto& tri = result.mesh.triangles[t];
+          crossing.push_back(
+              (result.mesh.vertices[tri[0]] + result.mesh.vertices[tri[1]] + result.mesh.vertices[tri[2]]) / 3);
+        }
+        dump_distances(std::filesystem::path(dump) /
+                           (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + "_self_intersecting.csv"),
+                       crossing, truth);
+        std::map<std::pair<std::uint32_t, std::uint32_t>, int> edges;
+        for (const auto& t : result.mesh.triangles)
+          for (int k = 0; k < 3; ++k) {
+            const std::uint32_t a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
+            ++edges[{std::min(a, b), std::max(a, b)}];
+          }
+        std::vector<Eigen::Vector3f> border;
+        for (const auto& [e, n] : edges)
+          if (n == 1) border.push_back((result.mesh.vertices[e.first] + result.mesh.vertices[e.second]) / 2);
+        dump_distances(
+            std::filesystem::path(dump) / (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + "_border.csv"),
+            border, truth);
+      }
+      if (!dump.empty())
+        dump_distances(std::filesystem::path(dump) / (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + ".csv"),
+                       measured_vertices(result.mesh), truth);
       row(name, std::string("VDB ") + slscan::core::mesh_mode_name(mode), mesh_figures(result.mesh, truth), time,
           result.mesh.triangles.size(), extra);
     }

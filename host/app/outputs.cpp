@@ -319,6 +319,9 @@ json scan_result_to_json(const core::ScanResult& result) {
                    {"holes_left_open", st.holes_left_open},
                    {"filled_triangles", st.filled_triangles},
                    {"rejected_triangles", st.rejected_triangles},
+                   {"crossing_triangles", st.crossing_triangles},
+                   {"crossed_faces_removed", st.crossed_faces_removed},
+                   {"sides_separated", st.sides_separated},
                    {"self_intersections", st.self_intersections}};
   } else if (!result.mesh_error.empty()) {
     out["mesh"] = {{"error", result.mesh_error}};

@@ -13,6 +13,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <memory>
 #include <mutex>
 #include <nanoflann.hpp>
@@ -23,6 +25,11 @@
 
 namespace slscan::mesh {
 namespace {
+
+// Watertight: closures started again after removing the measured triangles a patch crossed.
+constexpr int max_reclosures = 4;
+// The fit takes the points whose normal is within 90 deg of the query's side (docs/mesh.md step 2).
+constexpr float side_agreement_cosine = 0;
 
 // A nanoflann k-d tree over a point array, with the result sets the mesher needs. Built on one
 // thread and searched without sorting: every query visits the points in the tree's fixed
@@ -106,6 +113,27 @@ class Tree {
     std::size_t size() const { return 0; }
   };
 
+  // The centroid of the points within a radius (unweighted, in the tree's fixed order).
+  struct Centroid {
+    using DistanceType = float;
+    using IndexType = std::uint32_t;
+    explicit Centroid(float r2) : radius2(r2) {}
+    float radius2;
+    Eigen::Vector3f sum = Eigen::Vector3f::Zero();
+    std::size_t count = 0;
+    const std::vector<Eigen::Vector3f>* points = nullptr;
+    bool addPoint(float d2, std::uint32_t i) {
+      if (d2 < radius2) {
+        sum += (*points)[i];
+        ++count;
+      }
+      return true;
+    }
+    float worstDist() const { return radius2; }
+    bool full() const { return true; }
+    std::size_t size() const { return count; }
+  };
+
   struct Count {
     using DistanceType = float;
     using IndexType = std::uint32_t;
@@ -145,19 +173,46 @@ class Tree {
 // sphere fit has no such bias.
 class Implicit {
  public:
-  Implicit(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals, double sigma)
-      : points_(points), normals_(normals), tree_(points), sigma_(sigma), support_(3 * sigma) {}
+  Implicit(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals, double sigma,
+           double normal_gate)
+      : points_(points),
+        normals_(normals),
+        tree_(points),
+        sigma_(sigma),
+        support_(3 * sigma),
+        normal_gate_(static_cast<float>(normal_gate)) {}
 
   struct Value {
     double f = 0;
     Eigen::Vector3d normal = Eigen::Vector3d::Zero();  // gradient of the fit at x
     double weight = 0;                                 // 0: no point within the support
+    bool two_sided = false;  // points facing the other way within the support (a thin wall or edge)
   };
 
-  Value at(const Eigen::Vector3d& x) const {
-    Accumulate r(*this, x);
-    tree_.search(r, x.cast<float>());
+  // `facing`: the side whose points count (normals within the gate of it); zero: the nearest
+  // point's normal.
+  Value at(const Eigen::Vector3d& x, const Eigen::Vector3f& facing = Eigen::Vector3f::Zero()) const {
+    thread_local std::vector<Neighbour> found;
+    found.clear();
+    Gather gather(found, static_cast<float>(support_ * support_));
+    tree_.search(gather, x.cast<float>());
+    Sums r;
+    bool two_sided = false;
+    if (!found.empty()) {
+      // Only the points facing the nearest point's way: across a wall or an edge thinner than the
+      // kernel the other side's points (normals opposite) would pull the fit between the two.
+      std::size_t nearest = 0;
+      for (std::size_t k = 1; k < found.size(); ++k)
+        if (found[k].d2 < found[nearest].d2 || (found[k].d2 == found[nearest].d2 && found[k].i < found[nearest].i))
+          nearest = k;
+      const Eigen::Vector3f reference = facing.isZero() ? normals_[found[nearest].i] : facing;
+      for (const Neighbour& q : found)
+        if (normals_[q.i].dot(reference) < 0) two_sided = true;
+      for (const Neighbour& q : found)
+        if (normals_[q.i].dot(reference) > normal_gate_) r.add(*this, x, q);
+    }
     Value v;
+    v.two_sided = two_sided;
     v.weight = r.weight;
     if (!(r.weight > 0)) return v;
     // Sums in coordinates relative to x: the fit's value at x is then u0.
@@ -186,41 +241,45 @@ class Implicit {
   double support() const { return support_; }
 
  private:
-  struct Accumulate {
+  struct Neighbour {
+    float d2;
+    std::uint32_t i;
+  };
+  // The points within the support, in the tree's fixed traversal order.
+  struct Gather {
     using DistanceType = float;
     using IndexType = std::uint32_t;
-    Accumulate(const Implicit& s, const Eigen::Vector3d& q)
-        : self(s),
-          x(q),
-          radius2(static_cast<float>(s.support_ * s.support_)),
-          inv_two_sigma2(1 / (2 * s.sigma_ * s.sigma_)) {}
-    const Implicit& self;
-    Eigen::Vector3d x;
+    Gather(std::vector<Neighbour>& out, float r2) : found(out), radius2(r2) {}
+    std::vector<Neighbour>& found;
     float radius2;
-    double inv_two_sigma2;
+    bool addPoint(float d2, std::uint32_t i) {
+      if (d2 < radius2) found.push_back({d2, i});
+      return true;
+    }
+    float worstDist() const { return radius2; }
+    bool full() const { return true; }
+    std::size_t size() const { return found.size(); }
+  };
+  struct Sums {
     double weight = 0, pp = 0, pn = 0;
     Eigen::Vector3d p = Eigen::Vector3d::Zero(), n = Eigen::Vector3d::Zero();
-    bool addPoint(float d2, std::uint32_t i) {
-      if (d2 >= radius2) return true;
-      const double w = std::exp(-static_cast<double>(d2) * inv_two_sigma2);
-      const Eigen::Vector3d ni = self.normals_[i].cast<double>();
-      const Eigen::Vector3d pi = self.points_[i].cast<double>() - x;
+    void add(const Implicit& self, const Eigen::Vector3d& x, const Neighbour& q) {
+      const double w = std::exp(-static_cast<double>(q.d2) / (2 * self.sigma_ * self.sigma_));
+      const Eigen::Vector3d ni = self.normals_[q.i].cast<double>();
+      const Eigen::Vector3d pi = self.points_[q.i].cast<double>() - x;
       weight += w;
       p += w * pi;
       n += w * ni;
       pp += w * pi.squaredNorm();
       pn += w * pi.dot(ni);
-      return true;
     }
-    float worstDist() const { return radius2; }
-    bool full() const { return true; }
-    std::size_t size() const { return 0; }
   };
 
   const std::vector<Eigen::Vector3f>& points_;
   const std::vector<Eigen::Vector3f>& normals_;
   Tree tree_;
   double sigma_, support_;
+  float normal_gate_;  // cosine; -1 or below: every point
 };
 
 void check_cloud(const core::PointCloud& cloud) {
@@ -259,7 +318,8 @@ double median_spacing(const std::vector<Eigen::Vector3f>& points, const Tree& tr
 // not a 2-manifold, and a border cycle through it cannot be filled (CGAL's hole filling needs
 // a simple cycle: the small-rig ball bar's last open hole). At such a vertex the largest fan
 // (ties: the one with the lowest triangle) is kept and the others dropped, until none is left.
-void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::size_t vertex_count) {
+void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::vector<std::uint8_t>& flags,
+                    std::size_t vertex_count) {
   for (;;) {
     std::vector<std::uint32_t> start(vertex_count + 1, 0);
     for (const auto& t : triangles)
@@ -309,67 +369,34 @@ void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::s
     if (!dropped) return;
     std::size_t out = 0;
     for (std::size_t i = 0; i < triangles.size(); ++i)
-      if (!drop[i]) triangles[out++] = triangles[i];
+      if (!drop[i]) {
+        if (!flags.empty()) flags[out] = flags[i];
+        triangles[out++] = triangles[i];
+      }
     triangles.resize(out);
+    if (!flags.empty()) flags.resize(out);
   }
 }
 
-}  // namespace
+// The level set's cell, the scale of the data (max of cell and spacing), the kernel's sigma, and
+// when the mesh began (for MeshStats::mesh_ms).
+struct LevelSetScale {
+  double cell = 0, scale = 0, sigma = 0;
+  std::chrono::steady_clock::time_point start;
+};
 
-core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options,
-                            const core::InterruptionPoint& interrupt) {
-  const auto start = std::chrono::steady_clock::now();
-  options.check();
-  check_cloud(cloud);
-  core::MeshResult result;
-  result.mode = options.mode;
+// Steps 2-7 (docs/mesh.md) on the points kept, the fit taking the points whose normal is within
+// `side_gate` (a cosine; below -1: all) of the query's side.
+core::MeshResult level_set_mesh(const std::vector<Eigen::Vector3f>& points, const std::vector<Eigen::Vector3f>& normals,
+                                const std::vector<float>& intensity, const LevelSetScale& scales, float side_gate,
+                                core::MeshResult result, const core::MeshOptions& options,
+                                const core::InterruptionPoint& interrupt) {
+  const double cell = scales.cell, scale = scales.scale, sigma = scales.sigma;
+  const bool with_intensity = !intensity.empty();
   core::MeshStats& stats = result.stats;
-
-  // 1. Spacing, cell, kernel; points without neighbours left out.
-  auto all = std::make_unique<Tree>(cloud.points);
-  const double spacing = median_spacing(cloud.points, *all);
-  if (!(spacing > 0))
-    throw std::invalid_argument("mesh: the points have no spacing (all " + std::to_string(cloud.size()) +
-                                " at one position)");
-  const double cell =
-      options.cell_mm > 0 ? options.cell_mm : std::max(options.cell_spacing_factor * spacing, options.min_cell_mm);
-  const double scale = std::max(cell, spacing);
-  // The kernel follows the data, not the cell: half a cell at least, so that its support
-  // (3 sigma) still covers the band of voxels evaluated around the points (2 cells).
-  const double sigma = options.kernel_factor * std::max(spacing, cell / 2);
-  std::vector<Eigen::Vector3f> points, normals;
-  const bool with_intensity = cloud.intensity.size() == cloud.size();
-  std::vector<float> intensity;  // of the points kept, when the cloud has it
-  {
-    const auto radius2 = static_cast<float>(9 * sigma * sigma);
-    std::vector<std::uint8_t> keep(cloud.size(), 0);
-    const auto need = static_cast<std::size_t>(options.min_neighbors) + 1;  // the point itself counts
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cloud.size(), 1024), [&](const auto& r) {
-      core::interruption_point(interrupt);
-      for (std::size_t i = r.begin(); i < r.end(); ++i) {
-        Tree::Count count(radius2, need);
-        all->search(count, cloud.points[i]);
-        keep[i] = count.count >= need ? 1 : 0;
-      }
-    });
-    for (std::size_t i = 0; i < cloud.size(); ++i)
-      if (keep[i]) {
-        points.push_back(cloud.points[i]);
-        normals.push_back(cloud.normals[i].normalized());
-        if (with_intensity) intensity.push_back(cloud.intensity[i]);
-      }
-  }
-  all.reset();
-  stats.spacing_mm = spacing;
-  stats.points_used = points.size();
-  stats.isolated_points = cloud.size() - points.size();
-  if (points.size() < 4)
-    throw std::invalid_argument("mesh: only " + std::to_string(points.size()) + " of " + std::to_string(cloud.size()) +
-                                " points have " + std::to_string(options.min_neighbors) + " neighbours within " +
-                                std::to_string(3 * sigma) + " mm: no surface");
+  stats.sides_separated = side_gate >= -1;
   core::interruption_point(interrupt);
-  const Implicit implicit(points, normals, sigma);
-  result.cell_mm = cell;
+  const Implicit implicit(points, normals, sigma, side_gate);
   core::interruption_point(interrupt);
 
   // 2. A sparse grid around the points: the fit evaluated in a narrow band (the voxels within 2
@@ -462,16 +489,33 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   // moved vertex left bench_mesh's figures unchanged and cost two thirds of this step's time).
   // Vertices out of the kernel's reach stay.
   std::vector<Eigen::Vector3f> vnormals(vertices.size(), Eigen::Vector3f::Zero());
+  // The level set's own side at each vertex (area-weighted face normals): the fit there takes the
+  // points of that side, so a vertex of one face of a thin edge is not pulled onto the other's.
+  std::vector<Eigen::Vector3f> facing(vertices.size(), Eigen::Vector3f::Zero());
+  for (const auto& t : triangles) {
+    const Eigen::Vector3f face = (vertices[t[1]] - vertices[t[0]]).cross(vertices[t[2]] - vertices[t[0]]);
+    for (const std::uint32_t v : t) facing[v] += face;
+  }
+  for (auto& n : facing)
+    if (n.squaredNorm() > 0) n.normalize();
   // The normal of each vertex's nearest point (zero: no point within trim_gate).
   std::vector<Eigen::Vector3f> point_normal(vertices.size(), Eigen::Vector3f::Zero());
+  std::vector<std::uint8_t> two_sided(vertices.size(), 0);
+  // Past the data's rim the level set is the fit's extrapolation, not surface: a vertex is kept
+  // within trim_factor x scale of a point, and up to twice that in a gap between points (the
+  // points around it on every side: their centroid within one scale of it along the surface),
+  // but not beyond the rim (the points on one side: the centroid more than that away).
   const auto trim_gate = static_cast<float>(options.trim_factor * scale);
+  const auto gap_gate = 2 * trim_gate;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, vertices.size(), 256), [&](const auto& r) {
     core::interruption_point(interrupt);
     for (std::size_t i = r.begin(); i < r.end(); ++i) {
       const Eigen::Vector3d x0 = vertices[i].cast<double>();
       Eigen::Vector3d x = x0;
       Eigen::Vector3d n = Eigen::Vector3d::Zero();
-      if (const auto v = implicit.at(x0); v.weight > 1e-6 && v.normal.norm() >= 1e-3) {
+      const auto v = implicit.at(x0, facing[i]);
+      two_sided[i] = v.two_sided ? 1 : 0;
+      if (v.weight > 1e-6 && v.normal.norm() >= 1e-3) {
         n = v.normal.normalized();
         const Eigen::Vector3d moved = -v.f * v.normal / v.normal.squaredNorm();
         x = x0 + (moved.norm() > cell ? Eigen::Vector3d(moved * (cell / moved.norm())) : moved);
@@ -479,8 +523,17 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
       vertices[i] = x.cast<float>();
       vnormals[i] = n.cast<float>();
       float d2 = 0;
-      const std::int64_t k = implicit.tree().nearest(vertices[i], trim_gate, d2);
-      if (k >= 0) point_normal[i] = normals[static_cast<std::size_t>(k)];
+      const std::int64_t k = implicit.tree().nearest(vertices[i], gap_gate, d2);
+      if (k < 0) continue;
+      const Eigen::Vector3f& nearest_normal = normals[static_cast<std::size_t>(k)];
+      if (d2 > trim_gate * trim_gate) {
+        Tree::Centroid around(gap_gate * gap_gate);
+        around.points = &points;
+        implicit.tree().search(around, vertices[i]);
+        const Eigen::Vector3f offset = around.sum / static_cast<float>(around.count) - vertices[i];
+        if ((offset - nearest_normal * nearest_normal.dot(offset)).norm() > scale) continue;
+      }
+      point_normal[i] = nearest_normal;
     }
   });
 
@@ -504,7 +557,29 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   }
   triangles.clear();
   triangles.shrink_to_fit();
-  remove_pinches(kept, vertices.size());
+  {
+    // Where a wall or an edge is thinner than about a cell (a blade's trailing edge) the two
+    // sides' sheets of the level set can cross: such triangles are not the surface either. Only
+    // triangles with a corner that has points of both sides within the kernel can cross (the
+    // test on the whole mesh costs ~1.5 us a triangle).
+    core::TriangleMesh suspects;
+    suspects.vertices = vertices;
+    std::vector<std::size_t> suspect_index;
+    for (std::size_t i = 0; i < kept.size(); ++i)
+      if (two_sided[kept[i][0]] || two_sided[kept[i][1]] || two_sided[kept[i][2]]) {
+        suspects.triangles.push_back(kept[i]);
+        suspect_index.push_back(i);
+      }
+    std::vector<std::uint8_t> crossing(kept.size(), 0);
+    for (const std::size_t t : self_intersecting_triangles(suspects)) crossing[suspect_index[t]] = 1;
+    std::size_t out = 0;
+    for (std::size_t i = 0; i < kept.size(); ++i)
+      if (!crossing[i]) kept[out++] = kept[i];
+    stats.crossing_triangles = kept.size() - out;
+    kept.resize(out);
+  }
+  std::vector<std::uint8_t> no_flags;
+  remove_pinches(kept, no_flags, vertices.size());
   result.trimmed_triangles = level_set_triangles - kept.size();
 
   // 6. Pieces (connected through shared vertices) smaller than min_piece_fraction of the largest.
@@ -543,8 +618,34 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   mesh.filled.assign(mesh.triangles.size(), 0);
 
   core::interruption_point(interrupt);
-  if (options.mode == core::MeshMode::watertight && !mesh.triangles.empty())
-    close_holes(mesh, options, stats, interrupt);
+  if (options.mode == core::MeshMode::watertight && !mesh.triangles.empty()) {
+    // Where a patch crossed the measured surface and its hole stayed open (two sheets closer
+    // than a patch's triangles are long: a thin edge), the crossed triangles go and the holes
+    // left are closed again, the patches that held kept.
+    std::size_t raw_holes = 0, faired = 0;
+    for (int attempt = 0;; ++attempt) {
+      std::vector<std::size_t> crossed;
+      close_holes(mesh, options, stats, interrupt, &crossed);
+      if (attempt == 0) raw_holes = stats.holes;
+      faired += stats.holes_faired;
+      if (stats.holes_left_open == 0 || crossed.empty() || attempt == max_reclosures) break;
+      stats.crossed_faces_removed += crossed.size();
+      std::vector<std::uint8_t> drop(mesh.triangles.size(), 0);
+      for (const std::size_t t : crossed) drop[t] = 1;
+      std::size_t out = 0;
+      for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+        if (!drop[t]) {
+          mesh.filled[out] = mesh.filled[t];
+          mesh.triangles[out++] = mesh.triangles[t];
+        }
+      mesh.triangles.resize(out);
+      mesh.filled.resize(out);
+      remove_pinches(mesh.triangles, mesh.filled, mesh.vertices.size());
+    }
+    stats.holes = raw_holes;
+    stats.holes_faired = faired;
+    stats.holes_filled = raw_holes >= stats.holes_left_open ? raw_holes - stats.holes_left_open : 0;
+  }
   if (mesh.triangles.empty())
     throw std::invalid_argument("mesh: no surface left after trimming (" + std::to_string(points.size()) +
                                 " points, cell " + std::to_string(cell) + " mm)");
@@ -568,8 +669,74 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
     });
   }
   stats.closed = core::mesh_topology(mesh).closed();
-  stats.mesh_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  stats.mesh_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - scales.start).count();
   return result;
+}
+
+}  // namespace
+
+core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptions& options,
+                            const core::InterruptionPoint& interrupt) {
+  const auto start = std::chrono::steady_clock::now();
+  options.check();
+  check_cloud(cloud);
+  core::MeshResult result;
+  result.mode = options.mode;
+  core::MeshStats& stats = result.stats;
+
+  // 1. Spacing, cell, kernel; points without neighbours left out.
+  auto all = std::make_unique<Tree>(cloud.points);
+  const double spacing = median_spacing(cloud.points, *all);
+  if (!(spacing > 0))
+    throw std::invalid_argument("mesh: the points have no spacing (all " + std::to_string(cloud.size()) +
+                                " at one position)");
+  const double cell =
+      options.cell_mm > 0 ? options.cell_mm : std::max(options.cell_spacing_factor * spacing, options.min_cell_mm);
+  const double scale = std::max(cell, spacing);
+  // The kernel follows the data, not the cell: half a cell at least, so that its support
+  // (3 sigma) still covers the band of voxels evaluated around the points (2 cells).
+  const double sigma = options.kernel_factor * std::max(spacing, cell / 2);
+  std::vector<Eigen::Vector3f> points, normals;
+  const bool with_intensity = cloud.intensity.size() == cloud.size();
+  std::vector<float> intensity;  // of the points kept, when the cloud has it
+  {
+    const auto radius2 = static_cast<float>(9 * sigma * sigma);
+    std::vector<std::uint8_t> keep(cloud.size(), 0);
+    const auto need = static_cast<std::size_t>(options.min_neighbors) + 1;  // the point itself counts
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cloud.size(), 1024), [&](const auto& r) {
+      core::interruption_point(interrupt);
+      for (std::size_t i = r.begin(); i < r.end(); ++i) {
+        Tree::Count count(radius2, need);
+        all->search(count, cloud.points[i]);
+        keep[i] = count.count >= need ? 1 : 0;
+      }
+    });
+    for (std::size_t i = 0; i < cloud.size(); ++i)
+      if (keep[i]) {
+        points.push_back(cloud.points[i]);
+        normals.push_back(cloud.normals[i].normalized());
+        if (with_intensity) intensity.push_back(cloud.intensity[i]);
+      }
+  }
+  all.reset();
+  stats.spacing_mm = spacing;
+  stats.points_used = points.size();
+  stats.isolated_points = cloud.size() - points.size();
+  if (points.size() < 4)
+    throw std::invalid_argument("mesh: only " + std::to_string(points.size()) + " of " + std::to_string(cloud.size()) +
+                                " points have " + std::to_string(options.min_neighbors) + " neighbours within " +
+                                std::to_string(3 * sigma) + " mm: no surface");
+  core::interruption_point(interrupt);
+  const LevelSetScale scales{cell, scale, sigma, start};
+  if (!with_intensity) intensity.clear();
+  result.cell_mm = cell;
+  core::MeshResult separated =
+      level_set_mesh(points, normals, intensity, scales, side_agreement_cosine, result, options, interrupt);
+  if (options.mode != core::MeshMode::watertight || separated.stats.holes_left_open == 0) return separated;
+  // A thin edge's patches crossed the surface and a hole stayed open: the surface of the fit
+  // over both sides (closed where the separated one was not, less faithful at thin edges).
+  core::MeshResult mixed = level_set_mesh(points, normals, intensity, scales, -2.f, result, options, interrupt);
+  return mixed.stats.holes_left_open < separated.stats.holes_left_open ? mixed : separated;
 }
 
 }  // namespace slscan::mesh

@@ -8,13 +8,18 @@
 #include <CGAL/Polygon_mesh_processing/compute_normal.h>
 #include <CGAL/Polygon_mesh_processing/measure.h>
 #include <CGAL/Polygon_mesh_processing/orientation.h>
+#include <CGAL/Polygon_mesh_processing/refine.h>
 #include <CGAL/Polygon_mesh_processing/self_intersections.h>
 #include <CGAL/Polygon_mesh_processing/triangulate_hole.h>
 #include <CGAL/Surface_mesh.h>
 #include <CGAL/boost/graph/Euler_operations.h>
 #include <CGAL/boost/graph/helpers.h>
+#include <CGAL/box_intersection_d.h>
 
 #include <algorithm>
+#include <array>
+#include <iterator>
+#include <limits>
 #include <map>
 #include <set>
 #include <vector>
@@ -31,6 +36,8 @@ using VertexIndex = Surface::Vertex_index;
 using FaceIndex = Surface::Face_index;
 using HalfedgeIndex = Surface::Halfedge_index;
 namespace PMP = CGAL::Polygon_mesh_processing;
+
+constexpr std::size_t max_cubic_hole_edges = 150;
 
 // Our triangles into a half-edge mesh, in order; the ones it cannot hold (non-manifold edge or
 // vertex) are counted and left out.
@@ -59,17 +66,116 @@ double cycle_diameter(const Surface& sm, HalfedgeIndex h) {
 }
 
 // The patch ids of faces in self-intersecting pairs (-1: an original face).
+// Self-intersecting pairs with a patch face in them: only the patches and the faces whose
+// bounding box overlaps a patch face's are tested (the raw mesh has had its own crossings cut,
+// docs/mesh.md step 5, and testing the whole mesh costs ~1 us a face on every closure).
+// Original faces that a patch crosses are added to `crossed` (face indices).
 std::set<int> intersecting_patches(const Surface& sm, const Surface::Property_map<FaceIndex, int>& patch,
-                                   std::size_t& pairs) {
+                                   std::size_t& pairs, std::vector<std::size_t>* crossed = nullptr) {
+  using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, FaceIndex>;
+  const auto box_of = [&](FaceIndex f) {
+    CGAL::Bbox_3 b;
+    for (const VertexIndex v : CGAL::vertices_around_face(sm.halfedge(f), sm)) b += sm.point(v).bbox();
+    return Box(b, f);
+  };
+  std::vector<Box> patch_boxes, other_boxes;
+  for (const FaceIndex f : sm.faces()) (patch[f] >= 0 ? patch_boxes : other_boxes).push_back(box_of(f));
+  pairs = 0;
+  if (patch_boxes.empty()) return {};
+  std::vector<std::uint8_t> near(sm.number_of_faces() + sm.number_of_removed_faces(), 0);
+  CGAL::box_intersection_d(patch_boxes.begin(), patch_boxes.end(), other_boxes.begin(), other_boxes.end(),
+                           [&](const Box&, const Box& other) { near[other.info().idx()] = 1; });
+  std::vector<FaceIndex> range;
+  for (const FaceIndex f : sm.faces())
+    if (patch[f] >= 0 || near[f.idx()]) range.push_back(f);
   std::vector<std::pair<FaceIndex, FaceIndex>> found;
-  PMP::self_intersections(sm, std::back_inserter(found));
+  PMP::self_intersections(range, sm, std::back_inserter(found));
   pairs = found.size();
   std::set<int> ids;
   for (const auto& [a, b] : found) {
     ids.insert(patch[a]);
     ids.insert(patch[b]);
+    if (crossed != nullptr && (patch[a] < 0) != (patch[b] < 0)) crossed->push_back(patch[a] < 0 ? a.idx() : b.idx());
   }
   return ids;
+}
+
+// CGAL's hole filling searches the 3-D Delaunay triangulation of the border first and, when
+// that has no valid patch, every triangulation (cubic in the border's length: 4 s for a
+// 600-edge border here). Long borders skip the cubic search: a hole it cannot fill stays open
+// rather than stalling the scan. Near-planar borders try a 2-D constrained Delaunay first.
+auto hole_options(const Surface& sm, HalfedgeIndex h) {
+  std::size_t edges = 0;
+  for (const HalfedgeIndex g : CGAL::halfedges_around_face(h, sm)) {
+    (void)g;
+    ++edges;
+  }
+  return CGAL::parameters::use_2d_constrained_delaunay_triangulation(true).do_not_use_cubic_algorithm(
+      edges > max_cubic_hole_edges);
+}
+
+// The border cycle through h as its halfedges.
+std::vector<HalfedgeIndex> cycle_of(const Surface& sm, HalfedgeIndex h) {
+  std::vector<HalfedgeIndex> out;
+  for (const HalfedgeIndex g : CGAL::halfedges_around_face(h, sm)) out.push_back(g);
+  return out;
+}
+
+// Two border cycles joined by a bridge of two triangles (a, a', b), (a, b, b') between their
+// closest facing edges a->a' and b->b', the single cycle left filled as one hole: the two rims
+// of an unseen strip (a cup's rim seen only at its edges) are two cycles, and each alone has
+// no patch that does not cover the other. Returns the patch's faces (none when it failed).
+std::vector<FaceIndex> bridge_and_fill(Surface& sm, HalfedgeIndex one, HalfedgeIndex other) {
+  const auto first = cycle_of(sm, one), second = cycle_of(sm, other);
+  double best = std::numeric_limits<double>::max();
+  HalfedgeIndex h1, h2;
+  for (const HalfedgeIndex g1 : first)
+    for (const HalfedgeIndex g2 : second) {
+      const double cost = CGAL::squared_distance(sm.point(sm.target(g1)), sm.point(sm.source(g2))) +
+                          CGAL::squared_distance(sm.point(sm.target(g2)), sm.point(sm.source(g1)));
+      if (cost < best) {
+        best = cost;
+        h1 = g1;
+        h2 = g2;
+      }
+    }
+  if (h1 == Surface::null_halfedge()) return {};
+  const VertexIndex a = sm.source(h1), a2 = sm.target(h1), b = sm.source(h2), b2 = sm.target(h2);
+  if (a == b || a == b2 || a2 == b || a2 == b2) return {};
+  std::vector<FaceIndex> faces;
+  const std::array<VertexIndex, 3> t1{a, a2, b}, t2{a, b, b2};
+  const FaceIndex f1 = CGAL::Euler::add_face(t1, sm);
+  if (f1 == Surface::null_face()) return {};
+  const FaceIndex f2 = CGAL::Euler::add_face(t2, sm);
+  if (f2 == Surface::null_face()) {
+    CGAL::Euler::remove_face(sm.halfedge(f1), sm);
+    return {};
+  }
+  faces = {f1, f2};
+  const HalfedgeIndex border = sm.halfedge(b, a2);
+  if (border != Surface::null_halfedge() && sm.is_border(border))
+    PMP::triangulate_hole(sm, border, std::back_inserter(faces), hole_options(sm, border));
+  return faces;
+}
+
+// A fan from the border's centroid, refined: for a large hole whose border has no patch in
+// the Delaunay search space (the unseen root of a blade whose border runs up a thin edge).
+std::vector<FaceIndex> fan_fill(Surface& sm, HalfedgeIndex h) {
+  const auto border = cycle_of(sm, h);
+  Kernel::Vector_3 sum(0, 0, 0);
+  for (const HalfedgeIndex g : border) sum = sum + (sm.point(sm.target(g)) - CGAL::ORIGIN);
+  const Point centroid = CGAL::ORIGIN + sum / static_cast<double>(border.size());
+  CGAL::Euler::fill_hole(h, sm);
+  const HalfedgeIndex spoke = CGAL::Euler::add_center_vertex(h, sm);
+  sm.point(sm.target(spoke)) = centroid;
+  std::vector<FaceIndex> fan;
+  for (const FaceIndex f : CGAL::faces_around_target(spoke, sm))
+    if (f != Surface::null_face()) fan.push_back(f);
+  std::vector<FaceIndex> refined;
+  std::vector<VertexIndex> added;
+  PMP::refine(sm, fan, std::back_inserter(refined), std::back_inserter(added));
+  fan.insert(fan.end(), refined.begin(), refined.end());
+  return fan;
 }
 
 void remove_patches(Surface& sm, const Surface::Property_map<FaceIndex, int>& patch, const std::set<int>& ids) {
@@ -82,15 +188,37 @@ void remove_patches(Surface& sm, const Surface::Property_map<FaceIndex, int>& pa
 }  // namespace
 
 void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
-                 const core::InterruptionPoint& interrupt) {
+                 const core::InterruptionPoint& interrupt, std::vector<std::size_t>* crossed) {
   std::size_t rejected = 0;
   Surface sm = to_surface(mesh, rejected);
+  // Face index -> our triangle (the half-edge mesh refuses non-manifold triangles).
+  std::vector<std::size_t> triangle_of_face;
+  if (crossed != nullptr) {
+    crossed->clear();
+    Surface probe;
+    for (std::size_t i = 0; i < mesh.vertices.size(); ++i) probe.add_vertex(Point(0, 0, 0));
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      const auto& tri = mesh.triangles[t];
+      if (probe.add_face(VertexIndex(tri[0]), VertexIndex(tri[1]), VertexIndex(tri[2])) != Surface::null_face())
+        triangle_of_face.push_back(t);
+    }
+  }
   stats.rejected_triangles = rejected;
   auto [normal, created] =
       sm.add_property_map<VertexIndex, Eigen::Vector3f>("v:slscan_normal", Eigen::Vector3f::Zero());
   for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
     normal[VertexIndex(static_cast<Surface::size_type>(i))] = mesh.normals[i];
   auto patch = sm.add_property_map<FaceIndex, int>("f:slscan_patch", -1).first;
+  // Faces already filled by an earlier closure (mesh.filled): kept as they are, still flagged.
+  auto earlier = sm.add_property_map<FaceIndex, bool>("f:slscan_earlier", false).first;
+  if (mesh.filled.size() == mesh.triangles.size()) {
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      const auto& tri = mesh.triangles[t];
+      const HalfedgeIndex h = sm.halfedge(VertexIndex(tri[0]), VertexIndex(tri[1]));
+      if (h == Surface::null_halfedge() || sm.face(h) == Surface::null_face()) continue;
+      earlier[sm.face(h)] = mesh.filled[t] != 0;
+    }
+  }
   auto original = sm.add_property_map<VertexIndex, bool>("v:slscan_original", false).first;
   for (const VertexIndex v : sm.vertices()) original[v] = true;
 
@@ -98,19 +226,22 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   int next_patch = 0;
   const auto cycles = border_cycles(sm);
   stats.holes = cycles.size();
+  stats.filled_triangles = 0;
+  stats.holes_faired = 0;
   for (const HalfedgeIndex h : cycles) {
     core::interruption_point(interrupt);
     std::vector<FaceIndex> faces;
     std::vector<VertexIndex> added;
     const bool small = options.fill_holes_mm > 0 && cycle_diameter(sm, h) <= options.fill_holes_mm;
+    const auto fill_options = hole_options(sm, h);
     if (small) {
-      const auto [faired, fo, vo] =
-          PMP::triangulate_refine_and_fair_hole(sm, h, std::back_inserter(faces), std::back_inserter(added));
+      const auto [faired, fo, vo] = PMP::triangulate_refine_and_fair_hole(sm, h, std::back_inserter(faces),
+                                                                          std::back_inserter(added), fill_options);
       (void)fo;
       (void)vo;
       if (faired) ++stats.holes_faired;
     } else {
-      PMP::triangulate_and_refine_hole(sm, h, std::back_inserter(faces), std::back_inserter(added));
+      PMP::triangulate_and_refine_hole(sm, h, std::back_inserter(faces), std::back_inserter(added), fill_options);
     }
     for (const FaceIndex f : faces) patch[f] = next_patch;
     ++next_patch;
@@ -121,20 +252,67 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   std::size_t pairs = 0;
   for (int attempt = 0; attempt < 2; ++attempt) {
     core::interruption_point(interrupt);
-    std::set<int> bad = intersecting_patches(sm, patch, pairs);
+    std::set<int> bad = intersecting_patches(sm, patch, pairs, crossed);
     bad.erase(-1);
     if (bad.empty()) break;
     remove_patches(sm, patch, bad);
     if (attempt == 1) break;
     for (const HalfedgeIndex h : border_cycles(sm)) {
       std::vector<FaceIndex> faces;
-      PMP::triangulate_hole(sm, h, std::back_inserter(faces));
+      PMP::triangulate_hole(sm, h, std::back_inserter(faces), hole_options(sm, h));
       for (const FaceIndex f : faces) patch[f] = next_patch;
       ++next_patch;
     }
   }
+  // Last resorts for the holes still open: bridged to the nearest other open border when that
+  // is close (nearer than a quarter of either's diameter), else fanned; undone if they cross.
+  for (int resort = 0; resort < 2; ++resort) {
+    const auto open = border_cycles(sm);
+    if (open.empty()) break;
+    std::set<int> tried;
+    std::vector<std::uint8_t> used(open.size(), 0);
+    for (std::size_t i = 0; i < open.size(); ++i) {
+      if (used[i]) continue;
+      core::interruption_point(interrupt);
+      std::vector<FaceIndex> faces;
+      if (resort == 0) {
+        const double diameter = cycle_diameter(sm, open[i]);
+        std::size_t partner = open.size();
+        double nearest = std::numeric_limits<double>::max();
+        for (std::size_t j = i + 1; j < open.size(); ++j) {
+          if (used[j]) continue;
+          const double limit = 0.25 * std::min(diameter, cycle_diameter(sm, open[j]));
+          for (const HalfedgeIndex g1 : cycle_of(sm, open[i]))
+            for (const HalfedgeIndex g2 : cycle_of(sm, open[j])) {
+              const double d = std::sqrt(CGAL::squared_distance(sm.point(sm.target(g1)), sm.point(sm.target(g2))));
+              if (d < limit && d < nearest) {
+                nearest = d;
+                partner = j;
+              }
+            }
+        }
+        if (partner == open.size()) continue;
+        used[i] = used[partner] = 1;
+        faces = bridge_and_fill(sm, open[i], open[partner]);
+      } else {
+        used[i] = 1;
+        faces = fan_fill(sm, open[i]);
+      }
+      for (const FaceIndex f : faces) patch[f] = next_patch;
+      tried.insert(next_patch++);
+    }
+    std::set<int> bad = intersecting_patches(sm, patch, pairs, crossed);
+    std::set<int> undo;
+    std::set_intersection(bad.begin(), bad.end(), tried.begin(), tried.end(), std::inserter(undo, undo.end()));
+    remove_patches(sm, patch, undo);
+  }
   intersecting_patches(sm, patch, pairs);
   stats.self_intersections = pairs;
+  if (crossed != nullptr) {
+    for (auto& f : *crossed) f = triangle_of_face[f];
+    std::sort(crossed->begin(), crossed->end());
+    crossed->erase(std::unique(crossed->begin(), crossed->end()), crossed->end());
+  }
   stats.holes_left_open = border_cycles(sm).size();
   stats.holes_filled = stats.holes >= stats.holes_left_open ? stats.holes - stats.holes_left_open : 0;
 
@@ -160,10 +338,35 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
     for (const VertexIndex v : CGAL::vertices_around_face(sm.halfedge(f), sm))
       t[static_cast<std::size_t>(k++)] = index[v.idx()];
     out.triangles.push_back(t);
-    out.filled.push_back(patch[f] >= 0 ? 1 : 0);
-    if (patch[f] >= 0) ++stats.filled_triangles;
+    const bool filled = patch[f] >= 0 || earlier[f];
+    out.filled.push_back(filled ? 1 : 0);
+    if (filled) ++stats.filled_triangles;
   }
   mesh = std::move(out);
+}
+
+std::vector<std::size_t> self_intersecting_triangles(const core::TriangleMesh& mesh) {
+  Surface sm;
+  std::vector<VertexIndex> v(mesh.vertices.size());
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
+    v[i] = sm.add_vertex(Point(mesh.vertices[i].x(), mesh.vertices[i].y(), mesh.vertices[i].z()));
+  std::vector<std::size_t> triangle_of_face;
+  triangle_of_face.reserve(mesh.triangles.size());
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& tri = mesh.triangles[t];
+    if (sm.add_face(v[tri[0]], v[tri[1]], v[tri[2]]) != Surface::null_face()) triangle_of_face.push_back(t);
+  }
+  std::vector<std::pair<FaceIndex, FaceIndex>> pairs;
+  PMP::self_intersections(sm, std::back_inserter(pairs));
+  std::vector<std::size_t> out;
+  out.reserve(2 * pairs.size());
+  for (const auto& [a, b] : pairs) {
+    out.push_back(triangle_of_face[a.idx()]);
+    out.push_back(triangle_of_face[b.idx()]);
+  }
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+  return out;
 }
 
 MeshCheck check_mesh(const core::TriangleMesh& mesh, bool count_self_intersections) {

@@ -45,7 +45,7 @@ struct MeshOptions {
   double kernel_factor = 2;          // Gaussian sigma = kernel_factor x max(cell, spacing), support 3 sigma
   int min_neighbors = 4;             // points with fewer neighbours within the support are left out
   double adaptivity = 0;             // OpenVDB volumeToMesh adaptivity (0..1; 0 = uniform)
-  double trim_factor = 3;            // triangles with a vertex farther than this x max(cell, spacing) from
+  double trim_factor = 1.5;          // triangles with a vertex farther than this x max(cell, spacing) from
                                      // every point are not surface (the level set's own closure)
   double min_piece_fraction = 0.01;  // pieces with fewer triangles than this fraction of the largest are dropped
   // Watertight: holes whose border fits in this diameter (mm) are closed with a smooth (faired)
@@ -74,11 +74,16 @@ struct MeshStats {
   std::size_t points_used = 0, isolated_points = 0;
   std::size_t voxels = 0, leaves = 0;
   std::size_t dropped_piece_triangles = 0;  // in pieces below min_piece_fraction
+  std::size_t crossing_triangles = 0;       // in self-intersecting pairs of the level set's mesh, cut
   std::size_t rejected_triangles = 0;       // watertight: non-manifold triangles the half-edge mesh refused
   std::size_t holes = 0, holes_filled = 0, holes_faired = 0, holes_left_open = 0;
   std::size_t filled_triangles = 0;
-  std::size_t self_intersections = 0;  // watertight: face pairs left (0 unless a hole stayed open)
+  std::size_t crossed_faces_removed = 0;  // watertight: measured faces a fill crossed, replaced by the refill
+  std::size_t self_intersections = 0;     // watertight: face pairs left (0 unless a hole stayed open)
   bool closed = false;
+  // The fit took one side's points only (thin edges kept); false: watertight fell back to the
+  // fit over both sides because a hole stayed open with one side's (docs/mesh.md).
+  bool sides_separated = true;
   double mesh_ms = 0;  // meshing alone (wall)
 };
 

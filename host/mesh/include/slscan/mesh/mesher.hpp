@@ -1,9 +1,11 @@
-// The surface mesher (docs/mesh.md): an implicit surface of the oriented points (IMLS, Gaussian
-// weights), sampled on a sparse OpenVDB level set around the points, meshed by volumeToMesh,
-// vertices projected onto the implicit surface, and trimmed to where the points are (raw) or
-// closed with CGAL's hole filling (watertight). Deterministic: the same cloud gives the same
+// The surface mesher (docs/mesh.md): an implicit surface of the oriented points (algebraic
+// spheres fitted to one side's points, Gaussian weights), sampled on a sparse OpenVDB level set
+// around the points, meshed by volumeToMesh, vertices projected onto the implicit surface, and
+// trimmed to where the points are (raw) or closed with CGAL's hole filling (watertight). Deterministic: the same cloud gives the same
 // mesh on any number of threads.
 #pragma once
+
+#include <vector>
 
 #include "slscan/core/interruption.hpp"
 #include "slscan/core/mesh.hpp"
@@ -20,8 +22,9 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
 
 // Watertight closure of a raw mesh (consistently oriented triangles): border cycles closed with
 // CGAL, filled faces flagged in mesh.filled, self-intersecting fills undone. Updates stats.
+// `crossed`, when given: the triangles (indices into the mesh given) that a patch crossed.
 void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
-                 const core::InterruptionPoint& interrupt = {});
+                 const core::InterruptionPoint& interrupt = {}, std::vector<std::size_t>* crossed = nullptr);
 
 // CGAL's checks of a mesh (for reports and tests): closed 2-manifold (every triangle accepted
 // by a half-edge mesh, no border), self-intersecting face pairs, outward orientation.
@@ -33,6 +36,10 @@ struct MeshCheck {
   bool outward = false;  // PMP::is_outward_oriented (closed meshes only)
   double volume = 0;     // mm^3 (closed meshes only)
 };
+// The triangles (indices into mesh.triangles) in a self-intersecting pair, by CGAL's
+// PMP::self_intersections, ascending. Triangles a half-edge mesh cannot hold are not tested.
+std::vector<std::size_t> self_intersecting_triangles(const core::TriangleMesh& mesh);
+
 MeshCheck check_mesh(const core::TriangleMesh& mesh, bool count_self_intersections = true);
 
 }  // namespace slscan::mesh
