@@ -1,8 +1,8 @@
 // The surface mesher (docs/mesh.md): an implicit surface of the oriented points (algebraic
 // spheres fitted to one side's points, Gaussian weights), sampled on a sparse OpenVDB level set
 // around the points, meshed by volumeToMesh, vertices projected onto the implicit surface, and
-// trimmed to where the points are (raw) or closed with CGAL's hole filling (watertight). Deterministic: the same cloud gives the same
-// mesh on any number of threads.
+// trimmed to where the points are (raw) or closed with CGAL's hole filling (watertight). Deterministic: the same cloud
+// gives the same mesh on any number of threads.
 #pragma once
 
 #include <vector>
