@@ -485,6 +485,11 @@ static int run_bench(int argc, char** argv) {
                        measured_vertices(result.mesh), truth);
       row(name, std::string("VDB ") + slscan::core::mesh_mode_name(mode), mesh_figures(result.mesh, truth), time,
           result.mesh.triangles.size(), extra);
+      // Where the time goes (the last repeat's steps), on stderr so the table stays a table.
+      std::string steps;
+      for (const auto& [step, ms] : result.stats.step_ms)
+        steps.append(steps.empty() ? "" : ", ").append(step).append(" ").append(std::to_string(std::lround(ms)));
+      std::fprintf(stderr, "%s %s steps (ms): %s\n", name.c_str(), slscan::core::mesh_mode_name(mode), steps.c_str());
     }
 #ifdef SLSCAN_HAVE_OPEN3D
     const open3d::geometry::PointCloud open3d_cloud = to_open3d(model);

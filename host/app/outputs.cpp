@@ -68,6 +68,13 @@ json counts_json(const core::TriangulateCounts& c) {
           {"outside_depth", c.outside_depth}};
 }
 
+// The mesher's steps in their order (an object would sort them by name).
+json step_ms_json(const core::MeshStats& stats) {
+  json steps = json::array();
+  for (const auto& [step, ms] : stats.step_ms) steps.push_back({{"step", step}, {"ms", ms}});
+  return steps;
+}
+
 json isometry_json(const Eigen::Isometry3d& t) {
   json rows = json::array();
   for (int r = 0; r < 4; ++r) rows.push_back({t.matrix()(r, 0), t.matrix()(r, 1), t.matrix()(r, 2), t.matrix()(r, 3)});
@@ -310,6 +317,7 @@ json scan_result_to_json(const core::ScanResult& result) {
                    {"cell_mm", result.mesh.cell_mm},
                    {"spacing_mm", st.spacing_mm},
                    {"mesh_ms", st.mesh_ms},
+                   {"step_ms", step_ms_json(st)},
                    {"points_used", st.points_used},
                    {"isolated_points", st.isolated_points},
                    {"trimmed_triangles", result.mesh.trimmed_triangles},

@@ -22,6 +22,25 @@ TEST(MeshTopology, CountsOpenAndFlippedEdges) {
   EXPECT_FALSE(topo.closed());
 }
 
+TEST(MeshTopology, ClosedTetrahedronAndAFinOnOneEdge) {
+  slscan::core::TriangleMesh mesh;
+  mesh.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}};
+  mesh.triangles = {{0, 2, 1}, {0, 1, 3}, {1, 2, 3}, {0, 3, 2}};
+  auto topo = slscan::core::mesh_topology(mesh);
+  EXPECT_EQ(topo.edges, 6u);
+  EXPECT_EQ(topo.boundary_edges, 0u);
+  EXPECT_EQ(topo.non_manifold_edges, 0u);
+  EXPECT_EQ(topo.inconsistent_edges, 0u);
+  EXPECT_TRUE(topo.closed());
+  // A fin on edge 1-3: that edge has three triangles, the fin's other two edges are open.
+  mesh.triangles.push_back({1, 4, 3});
+  topo = slscan::core::mesh_topology(mesh);
+  EXPECT_EQ(topo.edges, 8u);
+  EXPECT_EQ(topo.non_manifold_edges, 1u);
+  EXPECT_EQ(topo.boundary_edges, 2u);
+  EXPECT_FALSE(topo.closed());
+}
+
 TEST(MeshMode, NamesRoundTripAndUnknownNamesAreRefused) {
   for (const auto mode : {slscan::core::MeshMode::raw, slscan::core::MeshMode::watertight}) {
     slscan::core::MeshMode parsed =

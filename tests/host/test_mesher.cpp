@@ -10,6 +10,8 @@
 #include <cmath>
 #include <numbers>
 #include <random>
+#include <string>
+#include <vector>
 
 #include "slscan/mesh/mesher.hpp"
 
@@ -227,6 +229,21 @@ TEST(Mesher, HoleStaysOpenInRawAndIsClosedAndFlaggedInWatertight) {
   // The faired patch follows the sphere's curvature roughly: within 0.3 mm of it.
   for (std::size_t i = 0; i < tight.mesh.vertices.size(); ++i)
     ASSERT_LT(std::abs((tight.mesh.vertices[i] - centre_point()).norm() - radius), 0.3f) << "vertex " << i;
+  // The steps' times: each step once, in the order run, adding up to the whole mesh's time (the
+  // steps cover it but for a few statements between them).
+  std::vector<std::string> names;
+  double total = 0;
+  for (const auto& [step, ms] : tight.stats.step_ms) {
+    names.push_back(step);
+    ASSERT_GE(ms, 0) << step;
+    total += ms;
+  }
+  const std::vector<std::string> expected = {
+      "spacing", "band",      "fit_voxels", "flood_fill",  "volume_to_mesh", "polygons", "project_vertices",
+      "trim",    "crossings", "pieces",     "close_holes", "intensity",      "topology"};
+  EXPECT_EQ(names, expected);
+  EXPECT_LE(total, tight.stats.mesh_ms * 1.001 + 0.01);
+  EXPECT_GE(total, tight.stats.mesh_ms * 0.9);
 }
 
 // Two thirds of a sphere: the opening (19 mm across) is larger than fill_holes_mm, closed with

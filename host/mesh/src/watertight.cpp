@@ -41,14 +41,25 @@ constexpr std::size_t max_cubic_hole_edges = 150;
 
 // Our triangles into a half-edge mesh, in order; the ones it cannot hold (non-manifold edge or
 // vertex) are counted and left out.
-Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected) {
+// `triangle_of_face`, when given: the triangle each face came from.
+Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected,
+                   std::vector<std::size_t>* triangle_of_face = nullptr) {
   Surface sm;
+  sm.reserve(static_cast<Surface::size_type>(mesh.vertices.size()),
+             static_cast<Surface::size_type>(3 * mesh.triangles.size() / 2 + 64),
+             static_cast<Surface::size_type>(mesh.triangles.size()));
   std::vector<VertexIndex> v(mesh.vertices.size());
   for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
     v[i] = sm.add_vertex(Point(mesh.vertices[i].x(), mesh.vertices[i].y(), mesh.vertices[i].z()));
   rejected = 0;
-  for (const auto& t : mesh.triangles)
-    if (sm.add_face(v[t[0]], v[t[1]], v[t[2]]) == Surface::null_face()) ++rejected;
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& tri = mesh.triangles[t];
+    if (sm.add_face(v[tri[0]], v[tri[1]], v[tri[2]]) == Surface::null_face()) {
+      ++rejected;
+    } else if (triangle_of_face != nullptr) {
+      triangle_of_face->push_back(t);
+    }
+  }
   return sm;
 }
 
@@ -66,12 +77,14 @@ double cycle_diameter(const Surface& sm, HalfedgeIndex h) {
 }
 
 // The patch ids of faces in self-intersecting pairs (-1: an original face).
-// Self-intersecting pairs with a patch face in them: only the patches and the faces whose
-// bounding box overlaps a patch face's are tested (the raw mesh has had its own crossings cut,
-// docs/mesh.md step 5, and testing the whole mesh costs ~1 us a face on every closure).
-// Original faces that a patch crosses are added to `crossed` (face indices).
-std::set<int> intersecting_patches(const Surface& sm, const Surface::Property_map<FaceIndex, int>& patch,
-                                   std::size_t& pairs, std::vector<std::size_t>* crossed = nullptr) {
+// Self-intersecting pairs with a face of the patches numbered `since` or later in them: only
+// those patches and the faces whose bounding box overlaps one of their faces' are tested (the raw
+// mesh has had its own crossings cut, docs/mesh.md step 5, the earlier patches were tested when
+// they were made, and testing the whole mesh costs ~0.6 us a face on every closure). The pairs
+// found are added to `found`; original faces that a patch crosses to `crossed` (face indices).
+std::set<int> intersecting_patches(const Surface& sm, const Surface::Property_map<FaceIndex, int>& patch, int since,
+                                   std::set<std::pair<FaceIndex, FaceIndex>>& found_pairs,
+                                   std::vector<std::size_t>* crossed = nullptr) {
   using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, FaceIndex>;
   const auto box_of = [&](FaceIndex f) {
     CGAL::Bbox_3 b;
@@ -79,20 +92,29 @@ std::set<int> intersecting_patches(const Surface& sm, const Surface::Property_ma
     return Box(b, f);
   };
   std::vector<Box> patch_boxes, other_boxes;
-  for (const FaceIndex f : sm.faces()) (patch[f] >= 0 ? patch_boxes : other_boxes).push_back(box_of(f));
-  pairs = 0;
+  CGAL::Bbox_3 reach;  // of the patches tested: faces outside it cannot cross them
+  for (const FaceIndex f : sm.faces())
+    if (patch[f] >= since) {
+      patch_boxes.push_back(box_of(f));
+      reach += patch_boxes.back().bbox();
+    }
   if (patch_boxes.empty()) return {};
+  for (const FaceIndex f : sm.faces())
+    if (patch[f] < since) {
+      const Box box = box_of(f);
+      if (CGAL::do_overlap(box.bbox(), reach)) other_boxes.push_back(box);
+    }
   std::vector<std::uint8_t> near(sm.number_of_faces() + sm.number_of_removed_faces(), 0);
   CGAL::box_intersection_d(patch_boxes.begin(), patch_boxes.end(), other_boxes.begin(), other_boxes.end(),
                            [&](const Box&, const Box& other) { near[other.info().idx()] = 1; });
   std::vector<FaceIndex> range;
   for (const FaceIndex f : sm.faces())
-    if (patch[f] >= 0 || near[f.idx()]) range.push_back(f);
+    if (patch[f] >= since || near[f.idx()]) range.push_back(f);
   std::vector<std::pair<FaceIndex, FaceIndex>> found;
   PMP::self_intersections(range, sm, std::back_inserter(found));
-  pairs = found.size();
   std::set<int> ids;
   for (const auto& [a, b] : found) {
+    found_pairs.insert(std::minmax(a, b));
     ids.insert(patch[a]);
     ids.insert(patch[b]);
     if (crossed != nullptr && (patch[a] < 0) != (patch[b] < 0)) crossed->push_back(patch[a] < 0 ? a.idx() : b.idx());
@@ -190,24 +212,23 @@ void remove_patches(Surface& sm, const Surface::Property_map<FaceIndex, int>& pa
 void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
                  const core::InterruptionPoint& interrupt, std::vector<std::size_t>* crossed) {
   std::size_t rejected = 0;
-  Surface sm = to_surface(mesh, rejected);
   // Face index -> our triangle (the half-edge mesh refuses non-manifold triangles).
   std::vector<std::size_t> triangle_of_face;
-  if (crossed != nullptr) {
-    crossed->clear();
-    Surface probe;
-    for (std::size_t i = 0; i < mesh.vertices.size(); ++i) probe.add_vertex(Point(0, 0, 0));
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-      const auto& tri = mesh.triangles[t];
-      if (probe.add_face(VertexIndex(tri[0]), VertexIndex(tri[1]), VertexIndex(tri[2])) != Surface::null_face())
-        triangle_of_face.push_back(t);
-    }
-  }
+  if (crossed != nullptr) crossed->clear();
+  Surface sm = to_surface(mesh, rejected, crossed != nullptr ? &triangle_of_face : nullptr);
   stats.rejected_triangles = rejected;
   auto [normal, created] =
       sm.add_property_map<VertexIndex, Eigen::Vector3f>("v:slscan_normal", Eigen::Vector3f::Zero());
   for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
     normal[VertexIndex(static_cast<Surface::size_type>(i))] = mesh.normals[i];
+  // Per-vertex intensity of the measured vertices carried through; the patches' get NaN (the
+  // mesher fills them in from the points).
+  const bool with_intensity = mesh.intensity.size() == mesh.vertices.size();
+  auto intensity =
+      sm.add_property_map<VertexIndex, float>("v:slscan_intensity", std::numeric_limits<float>::quiet_NaN()).first;
+  if (with_intensity)
+    for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
+      intensity[VertexIndex(static_cast<Surface::size_type>(i))] = mesh.intensity[i];
   auto patch = sm.add_property_map<FaceIndex, int>("f:slscan_patch", -1).first;
   // Faces already filled by an earlier closure (mesh.filled): kept as they are, still flagged.
   auto earlier = sm.add_property_map<FaceIndex, bool>("f:slscan_earlier", false).first;
@@ -249,13 +270,21 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
 
   // Fills that made the mesh self-intersect: undone, retried once as plain patches, undone again
   // if they still intersect (the hole stays open).
-  std::size_t pairs = 0;
+  // Every crossing pair found; those of removed faces are dropped as the patches go.
+  std::set<std::pair<FaceIndex, FaceIndex>> pairs;
+  const auto forget_removed = [&] {
+    for (auto it = pairs.begin(); it != pairs.end();)
+      it = sm.is_removed(it->first) || sm.is_removed(it->second) ? pairs.erase(it) : std::next(it);
+  };
+  int checked = 0;  // patches below this id have been tested
   for (int attempt = 0; attempt < 2; ++attempt) {
     core::interruption_point(interrupt);
-    std::set<int> bad = intersecting_patches(sm, patch, pairs, crossed);
+    std::set<int> bad = intersecting_patches(sm, patch, checked, pairs, crossed);
+    checked = next_patch;
     bad.erase(-1);
     if (bad.empty()) break;
     remove_patches(sm, patch, bad);
+    forget_removed();
     if (attempt == 1) break;
     for (const HalfedgeIndex h : border_cycles(sm)) {
       std::vector<FaceIndex> faces;
@@ -301,13 +330,14 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
       for (const FaceIndex f : faces) patch[f] = next_patch;
       tried.insert(next_patch++);
     }
-    std::set<int> bad = intersecting_patches(sm, patch, pairs, crossed);
+    std::set<int> bad = intersecting_patches(sm, patch, checked, pairs, crossed);
+    checked = next_patch;
     std::set<int> undo;
     std::set_intersection(bad.begin(), bad.end(), tried.begin(), tried.end(), std::inserter(undo, undo.end()));
     remove_patches(sm, patch, undo);
+    forget_removed();
   }
-  intersecting_patches(sm, patch, pairs);
-  stats.self_intersections = pairs;
+  stats.self_intersections = pairs.size();
   if (crossed != nullptr) {
     for (auto& f : *crossed) f = triangle_of_face[f];
     std::sort(crossed->begin(), crossed->end());
@@ -325,6 +355,7 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
     index[v.idx()] = static_cast<std::uint32_t>(out.vertices.size());
     const Point& p = sm.point(v);
     out.vertices.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
+    if (with_intensity) out.intensity.push_back(intensity[v]);
     if (original[v]) {
       out.normals.push_back(normal[v]);
     } else {

@@ -7,6 +7,7 @@
 #include <array>
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "slscan/core/point_cloud.hpp"
@@ -85,6 +86,10 @@ struct MeshStats {
   // fit over both sides because a hole stayed open with one side's (docs/mesh.md).
   bool sides_separated = true;
   double mesh_ms = 0;  // meshing alone (wall)
+  // Wall time of each step, in order (docs/mesh.md names them); a step run twice (watertight's
+  // fall back to the fit over both sides) is summed.
+  std::vector<std::pair<std::string, double>> step_ms;
+  void add_step_ms(const std::string& step, double ms);
 };
 
 struct MeshResult {

@@ -22,6 +22,8 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
 
 // Watertight closure of a raw mesh (consistently oriented triangles): border cycles closed with
 // CGAL, filled faces flagged in mesh.filled, self-intersecting fills undone. Updates stats.
+// mesh.intensity, when it has one value per vertex, is kept for the vertices given and NaN for
+// the patches' new vertices.
 // `crossed`, when given: the triangles (indices into the mesh given) that a patch crossed.
 void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
                  const core::InterruptionPoint& interrupt = {}, std::vector<std::size_t>* crossed = nullptr);
