@@ -328,6 +328,8 @@ json scan_result_to_json(const core::ScanResult& result) {
                    {"filled_triangles", st.filled_triangles},
                    {"rejected_triangles", st.rejected_triangles},
                    {"crossing_triangles", st.crossing_triangles},
+                   {"pinholes_filled", st.pinholes_filled},
+                   {"pinholes_crossing", st.pinholes_crossing},
                    {"crossed_faces_removed", st.crossed_faces_removed},
                    {"sides_separated", st.sides_separated},
                    {"self_intersections", st.self_intersections}};

@@ -215,17 +215,27 @@ TEST(Mesher, HoleStaysOpenInRawAndIsClosedAndFlaggedInWatertight) {
   EXPECT_EQ(tight.stats.holes_left_open, 0u);
   EXPECT_GE(tight.stats.holes_filled, 1u);
   ASSERT_EQ(tight.mesh.filled.size(), tight.mesh.triangles.size());
-  // The filled faces are in the hole, and only there; the surface elsewhere is raw's.
-  std::size_t filled = 0;
+  // The filled faces are in the hole, and elsewhere only the pinholes' fans, which raw has too:
+  // the surface elsewhere is raw's.
+  std::size_t filled = 0, outside = 0;
   for (std::size_t i = 0; i < tight.mesh.triangles.size(); ++i) {
     if (!tight.mesh.filled[i]) continue;
     ++filled;
     const auto& t = tight.mesh.triangles[i];
     const Eigen::Vector3f mid = (tight.mesh.vertices[t[0]] + tight.mesh.vertices[t[1]] + tight.mesh.vertices[t[2]]) / 3;
-    ASSERT_GT(((mid - centre_point()) / radius).z(), 0.9f) << "filled face " << i << " outside the hole";
+    if (((mid - centre_point()) / radius).z() <= 0.9f) ++outside;
   }
-  EXPECT_GT(filled, 0u);
+  EXPECT_GT(filled, outside);
   EXPECT_EQ(filled, tight.stats.filled_triangles);
+  EXPECT_EQ(raw.stats.filled_triangles,
+            static_cast<std::size_t>(std::count(raw.mesh.filled.begin(), raw.mesh.filled.end(), 1)));
+  EXPECT_LE(outside, raw.stats.filled_triangles) << "filled faces outside the hole that are not raw's pinhole fans";
+  EXPECT_LT(outside, tight.mesh.triangles.size() / 50);
+  // This lattice (0.2 mm apart, cell 0.2 mm) leaves pinholes where a cell of the surface reaches
+  // out of the band: raw closes them with fans on the surface (checked above: no crossing pair,
+  // every vertex within 5 um RMS of the sphere).
+  EXPECT_GT(raw.stats.pinholes_filled, 0u);
+  EXPECT_EQ(raw.stats.pinholes_filled, tight.stats.pinholes_filled);
   // The faired patch follows the sphere's curvature roughly: within 0.3 mm of it.
   for (std::size_t i = 0; i < tight.mesh.vertices.size(); ++i)
     ASSERT_LT(std::abs((tight.mesh.vertices[i] - centre_point()).norm() - radius), 0.3f) << "vertex " << i;
@@ -239,8 +249,8 @@ TEST(Mesher, HoleStaysOpenInRawAndIsClosedAndFlaggedInWatertight) {
     total += ms;
   }
   const std::vector<std::string> expected = {
-      "spacing", "band",      "fit_voxels", "flood_fill",  "volume_to_mesh", "polygons", "project_vertices",
-      "trim",    "crossings", "pieces",     "close_holes", "intensity",      "topology"};
+      "spacing",   "band",    "fit_voxels", "flood_fill", "volume_to_mesh", "polygons",  "project_vertices", "trim",
+      "crossings", "pinches", "pinholes",   "pieces",     "close_holes",    "intensity", "topology"};
   EXPECT_EQ(names, expected);
   EXPECT_LE(total, tight.stats.mesh_ms * 1.001 + 0.01);
   EXPECT_GE(total, tight.stats.mesh_ms * 0.9);

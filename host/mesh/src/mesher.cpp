@@ -21,6 +21,7 @@
 #include <numeric>
 #include <stdexcept>
 #include <string>
+#include <unordered_set>
 #include <vector>
 
 namespace slscan::mesh {
@@ -31,8 +32,12 @@ constexpr int max_reclosures = 4;
 // The fit takes the points whose normal is within 90 deg of the query's side (docs/mesh.md step 2).
 constexpr float side_agreement_cosine = 0;
 // The level set's voxels are fitted in blocks of fit_block^3 sharing one neighbour search: 2 cut
-// the fit's time from 1.3 to X s on the full-resolution ball bar (1 voxel, 4: Y s).
+// the fit's time on the full-resolution ball bar from 1.5 to 1.0-1.1 s (4: no faster).
 constexpr int fit_block = 2;
+// Pinholes (border cycles of at most this many edges, at most this many cells across) are closed
+// in raw mode too (docs/mesh.md step 6).
+constexpr std::size_t pinhole_max_edges = 40;
+constexpr double pinhole_max_cells = 6;
 constexpr int blocks_per_leaf = openvdb::FloatTree::LeafNodeType::DIM / fit_block;
 
 // A nanoflann k-d tree over a point array, with the result sets the mesher needs. Built on one
@@ -432,6 +437,55 @@ void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::v
   }
 }
 
+// The border cycles of at most `max_edges` edges whose box is at most `reach` across, each as
+// its vertices in the direction the triangles traverse their border edges. Needs a mesh without
+// bow-ties (remove_pinches): one border edge out of each border vertex.
+std::vector<std::vector<std::uint32_t>> small_border_cycles(const std::vector<std::array<std::uint32_t, 3>>& triangles,
+                                                            const std::vector<Eigen::Vector3f>& vertices,
+                                                            std::size_t max_edges, float reach) {
+  const std::size_t n = vertices.size();
+  std::vector<std::uint32_t> first(n + 1, 0);
+  for (const auto& t : triangles)
+    for (const std::uint32_t v : t) ++first[v + 1];
+  for (std::size_t v = 0; v < n; ++v) first[v + 1] += first[v];
+  std::vector<std::uint32_t> out(first.back()), fill(first.begin(), first.end() - 1);
+  for (const auto& t : triangles)
+    for (std::size_t k = 0; k < 3; ++k) out[fill[t[k]]++] = t[(k + 1) % 3];
+  const auto has_edge = [&](std::uint32_t a, std::uint32_t b) {
+    return std::find(out.begin() + first[a], out.begin() + first[a + 1], b) != out.begin() + first[a + 1];
+  };
+  constexpr std::uint32_t none = UINT32_MAX, several = UINT32_MAX - 1;
+  std::vector<std::uint32_t> next(n, none);
+  for (std::size_t a = 0; a < n; ++a)
+    for (std::uint32_t k = first[a]; k < first[a + 1]; ++k)
+      if (!has_edge(out[k], static_cast<std::uint32_t>(a))) next[a] = next[a] == none ? out[k] : several;
+  std::vector<std::uint8_t> seen(n, 0);
+  std::vector<std::vector<std::uint32_t>> cycles;
+  for (std::size_t start = 0; start < n; ++start) {
+    if (next[start] >= several || seen[start]) continue;
+    std::vector<std::uint32_t> cycle;
+    Eigen::AlignedBox3f box;
+    auto v = static_cast<std::uint32_t>(start);
+    while (v < several && !seen[v] && cycle.size() <= max_edges) {
+      seen[v] = 1;
+      cycle.push_back(v);
+      box.extend(vertices[v]);
+      v = next[v];
+    }
+    if (v == start && cycle.size() >= 3 && cycle.size() <= max_edges && box.diagonal().norm() <= reach)
+      cycles.push_back(std::move(cycle));
+  }
+  return cycles;
+}
+
+// A cell of a uniform grid as one key (coordinates within +-2^20 cells).
+std::uint64_t cell_key(const Eigen::Vector3f& x, double cell) {
+  std::uint64_t key = 0;
+  for (int k = 0; k < 3; ++k)
+    key = (key << 21) | static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(x[k] / cell)) + (1 << 20));
+  return key;
+}
+
 // Laps of the steps' wall time into MeshStats::step_ms.
 class StepClock {
  public:
@@ -469,10 +523,11 @@ core::MeshResult level_set_mesh(const std::vector<Eigen::Vector3f>& points, cons
   const Implicit implicit(points, normals, tree, sigma, side_gate);
   core::interruption_point(interrupt);
 
-  // 2. A sparse grid around the points: the fit evaluated in a narrow band (the voxels within 2
-  // of a point's voxel, which holds every edge the surface crosses near the points), the other
-  // voxels of the band's leaves signed by OpenVDB's flood fill. Cells with a corner out of the
-  // band (the level set leaving the band past the data's rim) are cut below.
+  // 2. A sparse grid around the points: the fit evaluated in a narrow band (the voxels within 1
+  // of a point's voxel), the other voxels of the band's leaves signed by OpenVDB's flood fill.
+  // Cells with a corner out of the band (the level set leaving the band past the data's rim, or
+  // reaching between sparse points: the pinholes closed below) are cut. A 2-voxel band kept
+  // those cells, the least faithful ones (docs/mesh.md "Speed"), at 40 % more fitting time.
   openvdb::initialize();
   const float background = static_cast<float>(3 * cell);
   auto grid = openvdb::FloatGrid::create(background);
@@ -484,7 +539,7 @@ core::MeshResult level_set_mesh(const std::vector<Eigen::Vector3f>& points, cons
     for (const auto& p : points)
       acc.setValueOn(xform.worldToIndexCellCentered(openvdb::Vec3d(p.x(), p.y(), p.z())), 0.f);
   }
-  openvdb::tools::dilateActiveValues(grid->tree(), 2, openvdb::tools::NN_FACE_EDGE_VERTEX,
+  openvdb::tools::dilateActiveValues(grid->tree(), 1, openvdb::tools::NN_FACE_EDGE_VERTEX,
                                      openvdb::tools::IGNORE_TILES);
   clock.lap("band");
   const auto far_gate = static_cast<float>(16 * scale + 16 * cell * 8);
@@ -684,6 +739,99 @@ core::MeshResult level_set_mesh(const std::vector<Eigen::Vector3f>& points, cons
   std::vector<std::uint8_t> no_flags;
   remove_pinches(kept, no_flags, vertices.size());
   result.trimmed_triangles = level_set_triangles - kept.size();
+  clock.lap("pinches");
+  // Pinholes: where the points are sparse for the cell, a cell of the surface reaches out of the
+  // band and is cut (step 3), leaving a hole a few cells across amid the points. Each is closed
+  // by a fan around a vertex put on the fit's surface, flagged filled (in raw mode too); a fan
+  // that crosses the surface (CGAL, against the faces near it) is taken out again.
+  std::vector<std::uint8_t> kept_filled(kept.size(), 0);
+  {
+    struct Fan {
+      std::size_t first = 0, count = 0;
+      Eigen::AlignedBox3f box;
+    };
+    std::vector<Fan> fans;
+    const std::size_t measured = kept.size();
+    for (const auto& cycle :
+         small_border_cycles(kept, vertices, pinhole_max_edges, static_cast<float>(pinhole_max_cells * cell))) {
+      // Not at a thin edge: there a fan can cross the other face's sheet (watertight closes it).
+      if (std::any_of(cycle.begin(), cycle.end(), [&](std::uint32_t v) { return two_sided[v] != 0; })) continue;
+      Fan fan;
+      fan.first = kept.size();
+      Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+      Eigen::Vector3f side = Eigen::Vector3f::Zero();
+      for (const std::uint32_t v : cycle) {
+        centre += vertices[v].cast<double>();
+        side += vnormals[v];
+        fan.box.extend(vertices[v]);
+      }
+      centre /= static_cast<double>(cycle.size());
+      if (side.squaredNorm() > 0) side.normalize();
+      const auto fit = implicit.at(centre, side);
+      Eigen::Vector3f normal = side;
+      if (fit.weight > 1e-6 && fit.normal.norm() >= 1e-3) {
+        const Eigen::Vector3d moved = -fit.f * fit.normal / fit.normal.squaredNorm();
+        if (moved.norm() <= cell) centre += moved;
+        normal = fit.normal.normalized().cast<float>();
+      }
+      const auto c = static_cast<std::uint32_t>(vertices.size());
+      vertices.push_back(centre.cast<float>());
+      vnormals.push_back(normal);
+      if (with_intensity) vintensity.push_back(std::numeric_limits<float>::quiet_NaN());
+      fan.box.extend(vertices.back());
+      for (std::size_t k = 0; k < cycle.size(); ++k) {
+        kept.push_back({cycle[(k + 1) % cycle.size()], cycle[k], c});
+        kept_filled.push_back(1);
+      }
+      fan.count = cycle.size();
+      fans.push_back(fan);
+    }
+    if (!fans.empty()) {
+      std::unordered_set<std::uint64_t> near;
+      std::vector<std::size_t> fan_of(kept.size() - measured);
+      for (std::size_t f = 0; f < fans.size(); ++f) {
+        for (std::size_t t = 0; t < fans[f].count; ++t) fan_of[fans[f].first - measured + t] = f;
+        // The cells the fan's box touches, and one more around them.
+        const Eigen::Vector3f lo = fans[f].box.min(), hi = fans[f].box.max();
+        const auto steps = [&](int k) { return static_cast<int>(std::ceil((hi[k] - lo[k]) / cell)) + 1; };
+        for (int i = -1; i <= steps(0); ++i)
+          for (int j = -1; j <= steps(1); ++j)
+            for (int k = -1; k <= steps(2); ++k)
+              near.insert(cell_key(lo + Eigen::Vector3f(static_cast<float>(i * cell), static_cast<float>(j * cell),
+                                                        static_cast<float>(k * cell)),
+                                   cell));
+      }
+      core::TriangleMesh probe;
+      probe.vertices = vertices;
+      std::vector<std::size_t> probe_index;
+      for (std::size_t i = 0; i < kept.size(); ++i) {
+        const auto& t = kept[i];
+        if (i < measured && !near.count(cell_key(vertices[t[0]], cell)) &&
+            !near.count(cell_key(vertices[t[1]], cell)) && !near.count(cell_key(vertices[t[2]], cell)))
+          continue;
+        probe.triangles.push_back(t);
+        probe_index.push_back(i);
+      }
+      std::vector<std::uint8_t> crossing_fan(fans.size(), 0);
+      for (const std::size_t t : self_intersecting_triangles(probe))
+        if (probe_index[t] >= measured) crossing_fan[fan_of[probe_index[t] - measured]] = 1;
+      std::size_t out = measured;
+      for (std::size_t i = measured; i < kept.size(); ++i)
+        if (!crossing_fan[fan_of[i - measured]]) {
+          kept[out] = kept[i];
+          kept_filled[out++] = 1;
+        }
+      kept.resize(out);
+      kept_filled.resize(out);
+      for (const std::uint8_t crossed : crossing_fan)
+        if (crossed) {
+          ++stats.pinholes_crossing;
+        } else {
+          ++stats.pinholes_filled;
+        }
+    }
+  }
+  clock.lap("pinholes");
 
   // 6. Pieces (connected through shared vertices) smaller than min_piece_fraction of the largest.
   std::vector<std::uint32_t> parent(vertices.size());
@@ -717,9 +865,13 @@ core::MeshResult level_set_mesh(const std::vector<Eigen::Vector3f>& points, cons
       mesh.normals.push_back(vnormals[i]);
       if (with_intensity) mesh.intensity.push_back(vintensity[i]);
     }
-  for (const auto& t : kept)
-    if (piece_size[root(t[0])] >= min_size) mesh.triangles.push_back({remap[t[0]], remap[t[1]], remap[t[2]]});
-  mesh.filled.assign(mesh.triangles.size(), 0);
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    const auto& t = kept[i];
+    if (piece_size[root(t[0])] < min_size) continue;
+    mesh.triangles.push_back({remap[t[0]], remap[t[1]], remap[t[2]]});
+    mesh.filled.push_back(kept_filled[i]);
+  }
+  stats.filled_triangles = static_cast<std::size_t>(std::count(mesh.filled.begin(), mesh.filled.end(), 1));
 
   clock.lap("pieces");
   core::interruption_point(interrupt);
@@ -805,7 +957,7 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
       options.cell_mm > 0 ? options.cell_mm : std::max(options.cell_spacing_factor * spacing, options.min_cell_mm);
   const double scale = std::max(cell, spacing);
   // The kernel follows the data, not the cell: half a cell at least, so that its support
-  // (3 sigma) still covers the band of voxels evaluated around the points (2 cells).
+  // (3 sigma) still covers the band of voxels evaluated around the points (1-2 cells).
   const double sigma = options.kernel_factor * std::max(spacing, cell / 2);
   std::vector<Eigen::Vector3f> points, normals;
   const bool with_intensity = cloud.intensity.size() == cloud.size();

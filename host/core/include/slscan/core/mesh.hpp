@@ -76,6 +76,8 @@ struct MeshStats {
   std::size_t voxels = 0, leaves = 0;
   std::size_t dropped_piece_triangles = 0;  // in pieces below min_piece_fraction
   std::size_t crossing_triangles = 0;       // in self-intersecting pairs of the level set's mesh, cut
+  std::size_t pinholes_filled = 0;          // holes a few cells across amid the points, fanned (flagged filled)
+  std::size_t pinholes_crossing = 0;        // pinholes whose fan crossed the surface, left to watertight
   std::size_t rejected_triangles = 0;       // watertight: non-manifold triangles the half-edge mesh refused
   std::size_t holes = 0, holes_filled = 0, holes_faired = 0, holes_left_open = 0;
   std::size_t filled_triangles = 0;
