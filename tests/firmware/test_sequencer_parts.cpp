@@ -1,23 +1,54 @@
 // The sequencer's parts that need no devices: the bounded queue's back-pressure, the timing
-// statistics and the validation of scan requests against a board.
+// statistics, the validation of scan requests against a board and the heap set-up.
 #include <gtest/gtest.h>
+#include <malloc.h>
 #include <pthread.h>
 #include <sched.h>
 
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <mutex>
 #include <thread>
 
 #include "slscand/hal/board.hpp"
 #include "slscand/hal/priority_inheritance_mutex.hpp"
 #include "slscand/sequencer/bounded_queue.hpp"
+#include "slscand/sequencer/realtime.hpp"
 #include "slscand/sequencer/scan_plan.hpp"
 #include "slscand/sequencer/timing.hpp"
 
 using namespace slscand;
 namespace pb = slproto::pb;
+
+namespace {
+#if defined(__SANITIZE_ADDRESS__)
+constexpr bool kAddressSanitizer = true;
+#else
+constexpr bool kAddressSanitizer = false;
+#endif
+}  // namespace
+
+// A frame-sized block must come from the heap and its memory stay mapped once freed, so that
+// the next frame's buffer is not faulted in and zeroed again. glibc's default would mmap a
+// 12 MiB block (over its 128 KiB threshold) and unmap it on free.
+TEST(ReuseFreedFrameMemory, AFrameSizedBlockComesFromTheHeapAndStaysMappedAfterFree) {
+  if (kAddressSanitizer) GTEST_SKIP() << "AddressSanitizer replaces glibc's malloc";
+  reuse_freed_frame_memory();
+  constexpr std::size_t kFrameBytes = std::size_t{12} << 20;  // a 12 MP 8-bit frame
+  const struct mallinfo2 before = ::mallinfo2();
+  void* frame = std::malloc(kFrameBytes);  // NOLINT(cppcoreguidelines-no-malloc): malloc is what is tested
+  ASSERT_NE(frame, nullptr);
+  std::memset(frame, 1, kFrameBytes);
+  const struct mallinfo2 held = ::mallinfo2();
+  EXPECT_EQ(held.hblkhd, before.hblkhd) << "the block was given its own mmap";
+  EXPECT_GE(held.uordblks, before.uordblks + kFrameBytes);
+  std::free(frame);  // NOLINT(cppcoreguidelines-no-malloc)
+  const struct mallinfo2 freed = ::mallinfo2();
+  EXPECT_GE(freed.fordblks, kFrameBytes) << "the freed frame's memory went back to the kernel";
+}
 
 TEST(BoundedQueue, BlocksWhenFullAndNeverDrops) {
   BoundedQueue<int> queue(2);

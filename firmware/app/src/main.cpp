@@ -123,6 +123,7 @@ int timing_report(const slscand::hal::BoardConfig& board, slscand::hal::BoardDev
 }  // namespace
 
 int main(int argc, char** argv) {
+  slscand::reuse_freed_frame_memory();
   std::string board_path, bind, timing_dir, token_file, config_path, true_calibration_path;
   long port = -1, views = 6, exposure_us = 0, period_us = 0;
   bool report = false, realtime = true, check = false, bind_given = false, realtime_given = false, mdns = true;

@@ -1,5 +1,6 @@
 #include "slscand/sequencer/realtime.hpp"
 
+#include <malloc.h>
 #include <pthread.h>
 #include <sched.h>
 #include <sys/mman.h>
@@ -55,6 +56,15 @@ RealtimeResult enter_realtime(int priority, int cpu) {
     }
   }
   return result;
+}
+
+void reuse_freed_frame_memory() {
+  // glibc's largest M_MMAP_THRESHOLD (32 MiB on 64-bit, 16 MiB on 32-bit boards); setting
+  // either value turns off glibc's own adjustment of both, so both are set.
+  constexpr int kLargestHeapBlock = static_cast<int>(4 * 1024 * 1024 * sizeof(long));
+  constexpr int kFreeHeapKept = 128 << 20;
+  (void)::mallopt(M_MMAP_THRESHOLD, kLargestHeapBlock);
+  (void)::mallopt(M_TRIM_THRESHOLD, kFreeHeapKept);
 }
 
 }  // namespace slscand
