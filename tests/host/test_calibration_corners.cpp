@@ -3,6 +3,7 @@
 // fitted to synthetic decoded maps.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -69,6 +70,35 @@ TEST(CalibrationCorners, FindsEveryCornerToATenthOfAPixel) {
     const double rms = std::sqrt(std::min(forward, backward) / n);
     EXPECT_LT(rms, 0.1) << (sector_based ? "sector based only" : "sector based, classic fallback");
   }
+}
+
+// A large image is searched at half size (the 352 x 256 board counts as large here): the
+// corners, refined on the full image, are as close to the truth as a full-size search's and
+// agree with them.
+TEST(CalibrationCorners, ALargeImageIsSearchedAtHalfSizeAndRefinedAtFullSize) {
+  const SyntheticBoard board;
+  CornerDetectionOptions whole;
+  whole.search_max_pixels = 0;
+  CornerDetectionOptions halved;
+  halved.search_max_pixels = 10'000;
+  const CornerDetection at_full = detect_checkerboard(board.image, board.target, whole);
+  const CornerDetection at_half = detect_checkerboard(board.image, board.target, halved);
+  ASSERT_TRUE(at_full.found) << at_full.reason;
+  ASSERT_TRUE(at_half.found) << at_half.reason;
+  EXPECT_EQ(at_full.search_scale, 1);
+  EXPECT_EQ(at_half.search_scale, 2);
+  const int n = board.target.corner_count();
+  ASSERT_EQ(static_cast<int>(at_half.view.corners.size()), n);
+  double forward = 0, backward = 0, largest_difference = 0;
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector2d p = at_half.view.corners[static_cast<std::size_t>(i)].pixel;
+    forward += (p - board.pixel(i)).squaredNorm();
+    backward += (p - board.pixel(n - 1 - i)).squaredNorm();
+    largest_difference =
+        std::max(largest_difference, (p - at_full.view.corners[static_cast<std::size_t>(i)].pixel).norm());
+  }
+  EXPECT_LT(std::sqrt(std::min(forward, backward) / n), 0.1);
+  EXPECT_LT(largest_difference, 0.01) << "the half-size search's corners refine to other points";
 }
 
 TEST(CalibrationCorners, MissingBoardIsReportedNotThrown) {

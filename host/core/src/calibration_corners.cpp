@@ -38,16 +38,26 @@ CornerDetection detect_checkerboard(const cv::Mat& image, const CheckerboardTarg
   bool found = false;
   const int classic_flags = cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE;
   const int sector_flags = cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE | cv::CALIB_CB_ACCURACY;
-  if (options.sector_based) {
-    found = cv::findChessboardCornersSB(grey, pattern, corners, sector_flags);
-  } else {
-    // The sector-based detector first: its corners start within a fraction of a pixel, where
-    // the classic one's can be several pixels off on a foreshortened board (a board lying on
-    // the turntable, seen from 27 degrees above: squares 20 x 10 px), too far for
-    // cornerSubPix's window to pull them back. The classic one is the fallback.
-    found = cv::findChessboardCornersSB(grey, pattern, corners, sector_flags);
-    if (!found) found = cv::findChessboardCorners(grey, pattern, corners, classic_flags);
-  }
+  auto find_sector_based = [&] {
+    if (options.search_max_pixels > 0 && grey.total() > options.search_max_pixels) {
+      cv::Mat half;
+      cv::resize(grey, half, cv::Size(), 0.5, 0.5, cv::INTER_AREA);
+      if (cv::findChessboardCornersSB(half, pattern, corners, sector_flags)) {
+        // A half-size pixel's centre is the middle of its 2 x 2 full-size pixels.
+        for (cv::Point2f& p : corners) p = 2.0F * p + cv::Point2f(0.5F, 0.5F);
+        out.search_scale = 2;
+        return true;
+      }
+    }
+    out.search_scale = 1;
+    return cv::findChessboardCornersSB(grey, pattern, corners, sector_flags);
+  };
+  found = find_sector_based();
+  // The sector-based detector first: its corners start within a fraction of a pixel, where
+  // the classic one's can be several pixels off on a foreshortened board (a board lying on
+  // the turntable, seen from 27 degrees above: squares 20 x 10 px), too far for cornerSubPix's
+  // window to pull them back. The classic one is the fallback.
+  if (!found && !options.sector_based) found = cv::findChessboardCorners(grey, pattern, corners, classic_flags);
   if (found && static_cast<int>(corners.size()) == target.corner_count()) {
     // cornerSubPix on every result: measured on a synthetic board with 1 DN of noise, the
     // sector-based corners alone scatter by 0.25 px, refined ones by 0.07 px. Its window must

@@ -26,12 +26,18 @@ struct CornerDetectionOptions {
   // the refined corner to the pixel grid (virtual rig, noise off: 0.053 px RMS to the truth
   // unblurred, 0.037 px at 0.7); a real lens's blur does the same job. 0: none.
   double subpixel_smoothing_sigma = 0.7;
+  // The sector-based search on an image of more pixels than this looks at a half-size copy
+  // first (the full image where that finds no board); cornerSubPix refines its corners on the
+  // full image either way. Its time and memory grow with the pixels (4.7 s a pose at 2464 x 2056,
+  // mostly on one core: docs/calibration.md, "Memory and time"). 0: always the full image.
+  std::size_t search_max_pixels = 2'000'000;
 };
 
 struct CornerDetection {
   bool found = false;
-  std::string reason;  // why not, when !found
-  TargetView view;     // every inner corner, ids row-major as in CheckerboardTarget
+  std::string reason;    // why not, when !found
+  int search_scale = 1;  // 2: the board was found on a half-size copy (search_max_pixels)
+  TargetView view;       // every inner corner, ids row-major as in CheckerboardTarget
 };
 
 // Finds all inner corners of `target` in an 8- or 16-bit single-channel image. A missing or
