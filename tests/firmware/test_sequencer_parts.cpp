@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <memory>
 #include <mutex>
 #include <thread>
 
@@ -39,13 +40,14 @@ TEST(ReuseFreedFrameMemory, AFrameSizedBlockComesFromTheHeapAndStaysMappedAfterF
   reuse_freed_frame_memory();
   constexpr std::size_t kFrameBytes = std::size_t{12} << 20;  // a 12 MP 8-bit frame
   const struct mallinfo2 before = ::mallinfo2();
-  void* frame = std::malloc(kFrameBytes);  // NOLINT(cppcoreguidelines-no-malloc): malloc is what is tested
+  // NOLINTNEXTLINE(cppcoreguidelines-no-malloc): malloc is what is tested
+  std::unique_ptr<void, void (*)(void*)> frame(std::malloc(kFrameBytes), std::free);
   ASSERT_NE(frame, nullptr);
-  std::memset(frame, 1, kFrameBytes);
+  std::memset(frame.get(), 1, kFrameBytes);
   const struct mallinfo2 held = ::mallinfo2();
   EXPECT_EQ(held.hblkhd, before.hblkhd) << "the block was given its own mmap";
   EXPECT_GE(held.uordblks, before.uordblks + kFrameBytes);
-  std::free(frame);  // NOLINT(cppcoreguidelines-no-malloc)
+  frame.reset();
   const struct mallinfo2 freed = ::mallinfo2();
   EXPECT_GE(freed.fordblks, kFrameBytes) << "the freed frame's memory went back to the kernel";
 }
@@ -154,7 +156,7 @@ TEST(ScanPlan, AcceptsWhatTheBoardCanDoAndRefusesTheRestWithAReason) {
   EXPECT_EQ(plan->frames_total(), 2u * 2u * 19u);
   EXPECT_EQ(plan->settle_ns, 50 * kMilli);  // the board's, since the request left it 0
 
-  auto refused = [&](pb::ScanRequest r, const std::string& expected) {
+  auto refused = [&](const pb::ScanRequest& r, const std::string& expected) {
     auto p = make_scan_plan(r, *board, camera);
     ASSERT_FALSE(p.ok()) << expected;
     EXPECT_NE(p.error().message.find(expected), std::string::npos) << p.error().message;

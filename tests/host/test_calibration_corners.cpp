@@ -167,7 +167,8 @@ TEST(CalibrationCorners, CornersWithoutDecodedPixelsAreRejected) {
   SyntheticMaps maps(120, 100);
   // Wipe the decode around (60, 50): the projector does not reach there.
   for (int v = 28; v < 73; ++v)
-    for (int u = 38; u < 83; ++u) maps.columns.coordinate[static_cast<std::size_t>(v * 120 + u)] = NAN;
+    for (int u = 38; u < 83; ++u)
+      maps.columns.coordinate[static_cast<std::size_t>(v) * 120 + static_cast<std::size_t>(u)] = NAN;
   TargetView corners;
   corners.corners = {{0, {30, 30}}, {1, {60, 50}}, {2, {90, 70}}};
   const ProjectorCorners result = projector_corners(corners, maps.columns, maps.rows);

@@ -8,6 +8,8 @@
 #include <cerrno>
 #include <cstring>
 
+#include "slproto/file_util.hpp"
+
 namespace slscand {
 
 namespace {
@@ -32,7 +34,7 @@ RealtimeResult enter_realtime(int priority, int cpu) {
   } else if (::mlockall(MCL_CURRENT | MCL_FUTURE) == 0) {
     result.memory_locked = true;
   } else {
-    result.warnings += std::string("mlockall failed (") + std::strerror(errno) +
+    result.warnings += "mlockall failed (" + slproto::errno_text(errno) +
                        "): page faults may delay triggers (needs CAP_IPC_LOCK or a higher RLIMIT_MEMLOCK); ";
   }
   sched_param param{};
@@ -40,7 +42,7 @@ RealtimeResult enter_realtime(int priority, int cpu) {
   if (const int rv = ::pthread_setschedparam(::pthread_self(), SCHED_FIFO, &param); rv == 0) {
     result.fifo = true;
   } else {
-    result.warnings += std::string("SCHED_FIFO refused (") + std::strerror(rv) +
+    result.warnings += "SCHED_FIFO refused (" + slproto::errno_text(rv) +
                        "): the sequencer runs at normal priority and its timing jitter will be larger (needs "
                        "CAP_SYS_NICE or an RLIMIT_RTPRIO >= " +
                        std::to_string(priority) + "); ";
@@ -52,7 +54,8 @@ RealtimeResult enter_realtime(int priority, int cpu) {
     if (const int rv = ::pthread_setaffinity_np(::pthread_self(), sizeof set, &set); rv == 0) {
       result.pinned = true;
     } else {
-      result.warnings += "cannot pin the sequencer to CPU " + std::to_string(cpu) + " (" + std::strerror(rv) + "); ";
+      result.warnings +=
+          "cannot pin the sequencer to CPU " + std::to_string(cpu) + " (" + slproto::errno_text(rv) + "); ";
     }
   }
   return result;
@@ -63,8 +66,10 @@ void reuse_freed_frame_memory() {
   // either value turns off glibc's own adjustment of both, so both are set.
   constexpr int kLargestHeapBlock = static_cast<int>(4 * 1024 * 1024 * sizeof(long));
   constexpr int kFreeHeapKept = 128 << 20;
+  // NOLINTBEGIN(concurrency-mt-unsafe): called once at start-up, before any thread
   (void)::mallopt(M_MMAP_THRESHOLD, kLargestHeapBlock);
   (void)::mallopt(M_TRIM_THRESHOLD, kFreeHeapKept);
+  // NOLINTEND(concurrency-mt-unsafe)
 }
 
 }  // namespace slscand
