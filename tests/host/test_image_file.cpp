@@ -177,6 +177,50 @@ TEST(ImageFile, PnmCommentsAndTiffByteOrdersAreRead) {
   EXPECT_FALSE(read_image_header(tiff).has_value());
 }
 
+// OpenCV 4.6 allocates a TIFF's strip (RowsPerStrip rows of the image's width) or tile from the
+// directory alone: a 46348 x 8 image declaring 5888 rows a strip made it allocate 546 MB (a
+// fuzzer's find). The block is checked against the same limit as the image.
+TEST(ImageFile, ATiffStripOrTileBeyondTheLimitIsRefusedBeforeDecoding) {
+  auto tiff_of = [](std::vector<std::pair<std::uint16_t, std::uint32_t>> fields) {
+    std::vector<std::uint8_t> tiff = {'I', 'I', 42, 0, 8, 0, 0, 0, static_cast<std::uint8_t>(fields.size()), 0};
+    for (const auto& [tag, value] : fields) {
+      const std::uint8_t entry[12] = {static_cast<std::uint8_t>(tag), static_cast<std::uint8_t>(tag >> 8), 4, 0, 1, 0,
+                                      0, 0, static_cast<std::uint8_t>(value), static_cast<std::uint8_t>(value >> 8),
+                                      static_cast<std::uint8_t>(value >> 16), static_cast<std::uint8_t>(value >> 24)};
+      tiff.insert(tiff.end(), entry, entry + 12);
+    }
+    return tiff;
+  };
+  const auto strips = tiff_of({{256, 46348}, {257, 8}, {278, 5888}});
+  const auto header = read_image_header(strips);
+  ASSERT_TRUE(header.has_value());
+  EXPECT_EQ(header->block_width, 46348u);
+  EXPECT_EQ(header->block_height, 5888u);
+  EXPECT_EQ(error_of(strips, ImageLimits{1u << 22, 1u << 20}),
+            "frame.img: the TIFF header gives strips or tiles of 46348 x 5888 pixels, more than the 4194304 an "
+            "image may have");
+  // libtiff reads a tag's first entry and ignores its duplicates: 4108 wide, not 16 (a fuzzer's
+  // find: OpenCV allocated 4108 x 65288 x 4 bytes, 1.07 GB, for a 218-byte file).
+  const auto duplicate = tiff_of({{256, 4108}, {257, 65}, {256, 16}, {278, 65288}});
+  EXPECT_NE(error_of(duplicate, ImageLimits{1u << 22, 1u << 20}).find("strips or tiles of 4108 x 65288 pixels"),
+            std::string::npos);
+  // Tiles: TileWidth x TileLength, whatever RowsPerStrip says.
+  const auto tiles = tiff_of({{256, 64}, {257, 64}, {278, 1}, {322, 4096}, {323, 2048}});
+  EXPECT_NE(error_of(tiles, ImageLimits{1u << 22, 1u << 20}).find("strips or tiles of 4096 x 2048 pixels"),
+            std::string::npos);
+  // No RowsPerStrip, or libtiff's "all rows" (2^32 - 1): one strip, the image.
+  for (const auto& fields : {tiff_of({{256, 300}, {257, 200}}), tiff_of({{256, 300}, {257, 200}, {278, UINT32_MAX}})}) {
+    const auto whole = read_image_header(fields);
+    ASSERT_TRUE(whole.has_value());
+    EXPECT_EQ(whole->block_width, 300u);
+    EXPECT_EQ(whole->block_height, 200u);
+  }
+  // A TIFF as written by OpenCV (libtiff's own strips) decodes as before.
+  const cv::Mat image = ramp(300, 200, CV_16U);
+  const auto written = encoded(".tiff", image);
+  EXPECT_EQ(cv::norm(decode_image(written, "w.tiff", ImageLimits{60000, 1u << 20}), image, cv::NORM_INF), 0.0);
+}
+
 // OpenCV's PNM reader ends a number at the character after it, whatever it is: "6684#98666" is
 // 6684 x 98666 to it (a '#' there starts no comment). The header is read the same way, so the
 // size checked is the size OpenCV would allocate (a fuzzer's find: it was checked as 6684 x 6).

@@ -54,7 +54,8 @@ std::optional<ImageHeader> bmp_header(Bytes b) {
 }
 
 std::optional<ImageHeader> tiff_header(Bytes b) {
-  // The first image file directory: ImageWidth (256) and ImageLength (257), SHORT or LONG.
+  // The first image file directory: ImageWidth (256), ImageLength (257), RowsPerStrip (278),
+  // TileWidth (322) and TileLength (323), each SHORT or LONG.
   const bool little = b[0] == 'I';
   auto read = [&](std::size_t at, int count) {
     return little ? little_endian(b, at, count) : big_endian(b, at, count);
@@ -64,17 +65,35 @@ std::optional<ImageHeader> tiff_header(Bytes b) {
   if (directory > b.size() || b.size() - directory < 2) return std::nullopt;
   const std::size_t entries = read(directory, 2);
   ImageHeader header{"TIFF", 0, 0};
+  std::optional<std::uint32_t> width, height, rows_per_strip, tile_width, tile_height;
   for (std::size_t i = 0; i < entries; ++i) {
     const std::size_t at = directory + 2 + 12 * i;
-    if (at > b.size() || b.size() - at < 12) return std::nullopt;
+    if (at > b.size() || b.size() - at < 12) break;  // libtiff reads no entry past the file's end either
     const std::uint32_t tag = read(at, 2), type = read(at + 2, 2);
-    if (tag != 256 && tag != 257) continue;
+    if (tag != 256 && tag != 257 && tag != 278 && tag != 322 && tag != 323) continue;
     if (type != 3 && type != 4) return std::nullopt;
     const std::uint32_t value = type == 3 ? read(at + 8, 2) : read(at + 8, 4);
-    (tag == 256 ? header.width : header.height) = value;
-    if (header.width != 0 && header.height != 0) return header;
+    // libtiff keeps a tag's first entry and ignores its later duplicates; so must we, or the
+    // size checked is not the size OpenCV allocates (a fuzzer's find).
+    auto keep_first = [&](std::optional<std::uint32_t>& field) {
+      if (!field) field = value;
+    };
+    if (tag == 256) keep_first(width);
+    if (tag == 257) keep_first(height);
+    if (tag == 278) keep_first(rows_per_strip);
+    if (tag == 322) keep_first(tile_width);
+    if (tag == 323) keep_first(tile_height);
   }
-  return std::nullopt;
+  if (!width || !height || *width == 0 || *height == 0) return std::nullopt;
+  header.width = *width;
+  header.height = *height;
+  // OpenCV's block: a tile when the image is tiled (it has a TileWidth), else a strip of the
+  // image's width; a size of 0 (or a strip of 2^32 - 1 rows, libtiff's "all") is the image's.
+  const bool tiled = tile_width.has_value();
+  header.block_width = tiled && *tile_width != 0 ? *tile_width : header.width;
+  const std::uint32_t rows = tiled ? tile_height.value_or(0) : rows_per_strip.value_or(0);
+  header.block_height = rows == 0 || (!tiled && rows == UINT32_MAX) ? header.height : rows;
+  return header;
 }
 
 std::optional<ImageHeader> jpeg_header(Bytes b) {
@@ -166,6 +185,11 @@ cv::Mat decode_image(std::span<const std::uint8_t> bytes, const std::string& wha
       header->width * header->height > limits.max_pixels)
     throw IoError(what + ": the " + format + " header gives " + size_text(header->width, header->height) +
                   " pixels, more than the " + std::to_string(limits.max_pixels) + " an image may have");
+  if (header->block_width > limits.max_pixels || header->block_height > limits.max_pixels ||
+      header->block_width * header->block_height > limits.max_pixels)
+    throw IoError(what + ": the " + format + " header gives strips or tiles of " +
+                  size_text(header->block_width, header->block_height) + " pixels, more than the " +
+                  std::to_string(limits.max_pixels) + " an image may have");
   cv::Mat image;
   try {
     // imdecode reads the buffer and never writes it.

@@ -22,6 +22,9 @@ struct ImageLimits {
 struct ImageHeader {
   const char* format = "";  // "PNG", "BMP", "TIFF", "JPEG", "PNM"
   std::uint64_t width = 0, height = 0;
+  // A TIFF's strip or tile: OpenCV 4.6 allocates one such block besides the image, sized from
+  // RowsPerStrip or TileWidth x TileLength alone (up to 1 GB, whatever the image's size).
+  std::uint64_t block_width = 0, block_height = 0;
 };
 
 // The header of a PNG, BMP, TIFF, JPEG or PNM (P1-P6) image, or nullopt when the bytes start
