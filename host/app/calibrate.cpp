@@ -156,10 +156,11 @@ int run_calibrate(const CalibrateCommand& command, const Console& console) {
     const core::CalibrationCapture& capture = folder.capture();
     measured = core::measurements_of(capture);
     measured.poses = capture.poses;
+    core::CalibrationPoseMeasurer measurer(options);
     for (std::size_t p = 0; p < capture.poses.size(); ++p) {
       const int pose = static_cast<int>(p);
       console.progress({"measuring poses", p, capture.poses.size(), "poses", capture.poses[p].name});
-      measured.measured.push_back(core::measure_calibration_pose(folder.read_pose(pose), pose, options));
+      measured.measured.push_back(measurer.measure(folder.read_pose(pose), pose));
     }
     console.end_progress();
     console.info("measured " + std::to_string(capture.frames.size()) + " frames of " +

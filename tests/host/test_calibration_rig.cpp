@@ -255,6 +255,28 @@ void measuring_pose_by_pose_gives_the_same_calibration(const Fixture& f) {
   measured.poses = f.capture.poses;
   for (std::size_t p = 0; p < f.capture.poses.size(); ++p)
     measured.measured.push_back(measure_calibration_pose(f.capture, static_cast<int>(p), {}, false));
+  // One measurer keeps its decoders from pose to pose (as the folder and the guided capture
+  // measure): a pose measured after another gives what a fresh measurer gives, bit for bit.
+  CalibrationPoseMeasurer measurer;
+  const std::size_t last = f.capture.poses.size() - 1;
+  (void)measurer.measure(f.capture, 0);
+  const CalibrationPoseMeasurement reused = measurer.measure(f.capture, static_cast<int>(last));
+  const CalibrationPoseMeasurement fresh = measure_calibration_pose(f.capture, static_cast<int>(last));
+  int sides_compared = 0;
+  for (std::size_t s = 0; s < 2; ++s) {
+    ASSERT_EQ(reused.projectors[s].has_value(), fresh.projectors[s].has_value());
+    if (!fresh.projectors[s]) continue;
+    ++sides_compared;
+    const auto& a = reused.projectors[s]->view.corners;
+    const auto& b = fresh.projectors[s]->view.corners;
+    ASSERT_EQ(a.size(), b.size());
+    ASSERT_GT(b.size(), 6u);
+    for (std::size_t i = 0; i < b.size(); ++i) {
+      EXPECT_EQ(a[i].id, b[i].id);
+      EXPECT_EQ(a[i].pixel, b[i].pixel);
+    }
+  }
+  EXPECT_GT(sides_compared, 0);
   measured.measured.back().width += 2;
   EXPECT_THROW(calibrate_rig(measured), std::invalid_argument);
   measured.measured.pop_back();

@@ -132,13 +132,13 @@ DecodedView decode(ProjectorViewDecoder& decoder, const std::vector<const cv::Ma
 
 CalibrationPoseMeasurement measure_pose(const PoseFrames& frames, const std::array<slproto::PatternPlan, 2>& plans,
                                         const CheckerboardTarget& target, const CalibrationOptions& options,
-                                        std::array<ProjectorViewDecoder, 2>& decoders, bool projectors = true) {
+                                        std::array<ProjectorViewDecoder, 2>* decoders) {
   CalibrationPoseMeasurement out;
   const cv::Mat image = detection_image(frames, plans);
   out.has_image = !image.empty();
   if (!out.has_image) return out;
   out.detection = detect_checkerboard(image, target, options.detection);
-  if (!out.detection.found || !projectors) return out;
+  if (!out.detection.found || decoders == nullptr) return out;  // the board only
   for (std::size_t s = 0; s < 2; ++s) {
     const auto& sets = frames.patterns[s];
     if (!any_present(sets[0]) && !any_present(sets[1])) continue;  // this projector showed nothing here
@@ -148,8 +148,8 @@ CalibrationPoseMeasurement measure_pose(const PoseFrames& frames, const std::arr
                          slproto::pattern_kind_name(plans[a][static_cast<std::size_t>(m)].kind) + ") along " +
                          slproto::coding_axis_name(kAxes[a]);
     if (!out.missing[s].empty()) continue;
-    const DecodedView columns = decode(decoders[0], sets[0]);
-    const DecodedView rows = decode(decoders[1], sets[1]);
+    const DecodedView columns = decode((*decoders)[0], sets[0]);
+    const DecodedView rows = decode((*decoders)[1], sets[1]);
     out.projectors[s] = projector_corners(out.detection.view, columns, rows, options.projector_corners);
   }
   return out;
@@ -192,7 +192,7 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
     if (options.progress)
       options.progress({CalibrationProgress::Phase::poses, p, capture.poses.size(),
                         capture.poses[p].name.empty() ? "pose " + std::to_string(p) : capture.poses[p].name});
-    CalibrationPoseMeasurement measured = measure_pose(frames[p], plans, capture.target, options, decoders);
+    CalibrationPoseMeasurement measured = measure_pose(frames[p], plans, capture.target, options, &decoders);
     measured.width = width;
     measured.height = height;
     measurements.measured.push_back(std::move(measured));
@@ -202,8 +202,10 @@ RigCalibrationResult calibrate_rig(const CalibrationCapture& capture, const Cali
   return calibrate_rig(measurements, options);
 }
 
-CalibrationPoseMeasurement measure_calibration_pose(const CalibrationCapture& capture, int pose,
-                                                    const CalibrationOptions& options, bool projectors) {
+CalibrationPoseMeasurer::CalibrationPoseMeasurer(CalibrationOptions options) : options_(std::move(options)) {}
+
+CalibrationPoseMeasurement CalibrationPoseMeasurer::measure(const CalibrationCapture& capture, int pose,
+                                                            bool projectors) {
   capture.target.check();
   const std::array<slproto::PatternPlan, 2> plans{capture.plan(CodingAxis::columns), capture.plan(CodingAxis::rows)};
   int width = 0, height = 0;
@@ -211,12 +213,23 @@ CalibrationPoseMeasurement measure_calibration_pose(const CalibrationCapture& ca
   if (pose < 0 || pose >= static_cast<int>(frames.size()))
     throw std::invalid_argument("calibration capture: pose " + std::to_string(pose) + " of " +
                                 std::to_string(frames.size()));
-  std::array<ProjectorViewDecoder, 2> decoders = make_decoders(plans, width, height, options, capture.bit_depth);
+  const DecodersFor wanted{capture.pattern_plan, width, height, capture.bit_depth};
+  if (projectors && (!decoders_ || made_for_ != wanted)) {
+    made_for_.reset();
+    decoders_.emplace(make_decoders(plans, width, height, options_, capture.bit_depth));
+    made_for_ = wanted;
+  }
   CalibrationPoseMeasurement measured =
-      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options, decoders, projectors);
+      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options_,
+                   projectors ? &*decoders_ : nullptr);
   measured.width = width;
   measured.height = height;
   return measured;
+}
+
+CalibrationPoseMeasurement measure_calibration_pose(const CalibrationCapture& capture, int pose,
+                                                    const CalibrationOptions& options, bool projectors) {
+  return CalibrationPoseMeasurer(options).measure(capture, pose, projectors);
 }
 
 RigCalibrationResult calibrate_rig(const CalibrationMeasurements& measurements, const CalibrationOptions& options) {

@@ -236,10 +236,11 @@ core::CalibrationMeasurements capture_calibration(const CalibrationCaptureReques
   // The boards of the poses taken (resumed ones included): a new pose must differ from them.
   std::vector<core::PoseFootprint> taken;
   int width = 0, height = 0;
+  core::CalibrationPoseMeasurer measurer(request.options);
   for (std::size_t p = 0; p < capture.poses.size(); ++p) {
     const int pose = static_cast<int>(p);
     measured.poses.push_back(capture.poses[p]);
-    measured.measured.push_back(core::measure_calibration_pose(resumed_folder->read_pose(pose), pose, request.options));
+    measured.measured.push_back(measurer.measure(resumed_folder->read_pose(pose), pose));
     const core::CalibrationPoseCheck check = core::check_calibration_pose(measured.measured.back(), capture.target);
     width = check.width;
     height = check.height;
@@ -271,8 +272,7 @@ core::CalibrationMeasurements capture_calibration(const CalibrationCaptureReques
       } catch (const DeviceError& e) {
         throw DeviceError(std::string(e.what()) + "; " + where_kept(request, p));
       }
-      core::CalibrationPoseMeasurement measurement =
-          core::measure_calibration_pose(frames_of_pose(capture, pose), pose, request.options);
+      core::CalibrationPoseMeasurement measurement = measurer.measure(frames_of_pose(capture, pose), pose);
       const core::CalibrationPoseCheck check = core::check_calibration_pose(measurement, capture.target);
       problem = check.problem(request.min_lit_fraction);
       if (check.board_found)
