@@ -38,6 +38,10 @@ using HalfedgeIndex = Surface::Halfedge_index;
 namespace PMP = CGAL::Polygon_mesh_processing;
 
 constexpr std::size_t max_cubic_hole_edges = 150;
+// Borders at least this long have their plain patch tested for crossings before it is refined:
+// refined, a long border's patch has 10^4-10^5 faces, which are costly to make and to test,
+// and it crosses the surface wherever the plain one does (the unseen inside of a cup).
+constexpr std::size_t precheck_hole_edges = 200;
 
 // Our triangles into a half-edge mesh, in order; the ones it cannot hold (non-manifold edge or
 // vertex) are counted and left out.
@@ -249,13 +253,29 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   stats.holes = cycles.size();
   stats.filled_triangles = 0;
   stats.holes_faired = 0;
+  std::set<std::pair<FaceIndex, FaceIndex>> prechecked_pairs;  // of patches removed at once
   for (const HalfedgeIndex h : cycles) {
     core::interruption_point(interrupt);
     std::vector<FaceIndex> faces;
     std::vector<VertexIndex> added;
     const bool small = options.fill_holes_mm > 0 && cycle_diameter(sm, h) <= options.fill_holes_mm;
     const auto fill_options = hole_options(sm, h);
-    if (small) {
+    if (cycle_of(sm, h).size() >= precheck_hole_edges) {
+      // What triangulate_(refine_and_fair_)hole do, with the plain patch tested in between: one
+      // that crosses is removed at once and the hole left to the retries below, as a refined
+      // one that crossed would have been.
+      PMP::triangulate_hole(sm, h, std::back_inserter(faces), fill_options);
+      for (const FaceIndex f : faces) patch[f] = next_patch;
+      if (intersecting_patches(sm, patch, next_patch, prechecked_pairs, crossed).count(next_patch) != 0) {
+        remove_patches(sm, patch, {next_patch});
+        ++stats.holes_crossing_unrefined;
+        ++next_patch;
+        continue;
+      }
+      const std::vector<FaceIndex> plain = faces;
+      PMP::refine(sm, plain, std::back_inserter(faces), std::back_inserter(added), fill_options);
+      if (small && PMP::fair(sm, added, fill_options)) ++stats.holes_faired;
+    } else if (small) {
       const auto [faired, fo, vo] = PMP::triangulate_refine_and_fair_hole(sm, h, std::back_inserter(faces),
                                                                           std::back_inserter(added), fill_options);
       (void)fo;

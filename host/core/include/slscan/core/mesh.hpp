@@ -81,6 +81,9 @@ struct MeshStats {
   std::size_t rejected_triangles = 0;       // watertight: non-manifold triangles the half-edge mesh refused
   std::size_t holes = 0, holes_filled = 0, holes_faired = 0, holes_left_open = 0;
   std::size_t filled_triangles = 0;
+  // watertight: long borders whose plain patch crossed the surface, removed before refinement
+  // (over every closure)
+  std::size_t holes_crossing_unrefined = 0;
   std::size_t crossed_faces_removed = 0;  // watertight: measured faces a fill crossed, replaced by the refill
   std::size_t self_intersections = 0;     // watertight: face pairs left (0 unless a hole stayed open)
   bool closed = false;
