@@ -331,6 +331,7 @@ json scan_result_to_json(const core::ScanResult& result) {
                    {"pinholes_filled", st.pinholes_filled},
                    {"pinholes_crossing", st.pinholes_crossing},
                    {"crossed_faces_removed", st.crossed_faces_removed},
+                   {"holes_crossing_unrefined", st.holes_crossing_unrefined},
                    {"sides_separated", st.sides_separated},
                    {"self_intersections", st.self_intersections}};
   } else if (!result.mesh_error.empty()) {
