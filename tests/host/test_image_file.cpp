@@ -181,12 +181,21 @@ TEST(ImageFile, PnmCommentsAndTiffByteOrdersAreRead) {
 // directory alone: a 46348 x 8 image declaring 5888 rows a strip made it allocate 546 MB (a
 // fuzzer's find). The block is checked against the same limit as the image.
 TEST(ImageFile, ATiffStripOrTileBeyondTheLimitIsRefusedBeforeDecoding) {
-  auto tiff_of = [](std::vector<std::pair<std::uint16_t, std::uint32_t>> fields) {
+  auto tiff_of = [](const std::vector<std::pair<std::uint16_t, std::uint32_t>>& fields) {
     std::vector<std::uint8_t> tiff = {'I', 'I', 42, 0, 8, 0, 0, 0, static_cast<std::uint8_t>(fields.size()), 0};
     for (const auto& [tag, value] : fields) {
-      const std::uint8_t entry[12] = {static_cast<std::uint8_t>(tag), static_cast<std::uint8_t>(tag >> 8), 4, 0, 1, 0,
-                                      0, 0, static_cast<std::uint8_t>(value), static_cast<std::uint8_t>(value >> 8),
-                                      static_cast<std::uint8_t>(value >> 16), static_cast<std::uint8_t>(value >> 24)};
+      const std::uint8_t entry[12] = {static_cast<std::uint8_t>(tag),
+                                      static_cast<std::uint8_t>(tag >> 8),
+                                      4,
+                                      0,
+                                      1,
+                                      0,
+                                      0,
+                                      0,
+                                      static_cast<std::uint8_t>(value),
+                                      static_cast<std::uint8_t>(value >> 8),
+                                      static_cast<std::uint8_t>(value >> 16),
+                                      static_cast<std::uint8_t>(value >> 24)};
       tiff.insert(tiff.end(), entry, entry + 12);
     }
     return tiff;

@@ -283,16 +283,20 @@ TEST(Mesher, APatchAcrossAnotherPartIsRefusedBeforeRefinement) {
   PointCloud cloud = sphere(30000, 0.005f, -2, 0.f, 11);
   const float rod_radius = 1.5f, rod_bottom = 0, rod_top = 18, step = 0.2f;
   const auto steps_around = static_cast<int>(2 * std::numbers::pi * rod_radius / step);
-  for (float z = rod_bottom; z <= rod_top; z += step)
+  const auto rows = static_cast<int>(std::lround((rod_top - rod_bottom) / step));
+  for (int row = 0; row <= rows; ++row)
     for (int k = 0; k < steps_around; ++k) {
+      const float z = rod_bottom + step * static_cast<float>(row);
       const double a = 2 * std::numbers::pi * k / steps_around;
       const Eigen::Vector3f d(static_cast<float>(std::cos(a)), static_cast<float>(std::sin(a)), 0);
       cloud.points.push_back(centre_point() + rod_radius * d + Eigen::Vector3f(0, 0, z));
       cloud.normals.push_back(d);
     }
+  const auto across = static_cast<int>(rod_radius / step);
   for (const float z : {rod_bottom, rod_top})
-    for (float x = -rod_radius; x <= rod_radius; x += step)
-      for (float y = -rod_radius; y <= rod_radius; y += step) {
+    for (int i = -across; i <= across; ++i)
+      for (int j = -across; j <= across; ++j) {
+        const float x = step * static_cast<float>(i), y = step * static_cast<float>(j);
         if (x * x + y * y > rod_radius * rod_radius) continue;
         cloud.points.push_back(centre_point() + Eigen::Vector3f(x, y, z));
         cloud.normals.emplace_back(0, 0, z == rod_top ? 1.f : -1.f);

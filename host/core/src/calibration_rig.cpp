@@ -219,9 +219,8 @@ CalibrationPoseMeasurement CalibrationPoseMeasurer::measure(const CalibrationCap
     decoders_.emplace(make_decoders(plans, width, height, options_, capture.bit_depth));
     made_for_ = wanted;
   }
-  CalibrationPoseMeasurement measured =
-      measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target, options_,
-                   projectors ? &*decoders_ : nullptr);
+  CalibrationPoseMeasurement measured = measure_pose(frames[static_cast<std::size_t>(pose)], plans, capture.target,
+                                                     options_, projectors ? &*decoders_ : nullptr);
   measured.width = width;
   measured.height = height;
   return measured;
