@@ -18,10 +18,13 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
+#include <cstdint>
 #include <iterator>
 #include <limits>
 #include <map>
 #include <set>
+#include <unordered_set>
 #include <vector>
 
 #include "slscan/mesh/mesher.hpp"
@@ -80,6 +83,60 @@ double cycle_diameter(const Surface& sm, HalfedgeIndex h) {
   return std::sqrt(dx * dx + dy * dy + dz * dz);
 }
 
+// The cells of a uniform grid that a set of boxes touch (cells ~4 times the boxes' mean size);
+// with more than max_cells of them, every box touches (the set is not worth a grid).
+class BoxGrid {
+ public:
+  template <class Box>
+  explicit BoxGrid(const std::vector<Box>& boxes) {
+    double size = 0;
+    for (const Box& b : boxes)
+      size += std::max(
+          {b.bbox().xmax() - b.bbox().xmin(), b.bbox().ymax() - b.bbox().ymin(), b.bbox().zmax() - b.bbox().zmin()});
+    cell_ = std::max(4 * size / static_cast<double>(boxes.size()), 1e-9);
+    for (const Box& b : boxes) {
+      if (!for_each_cell(b.bbox(), [&](std::uint64_t key) {
+            cells_.insert(key);
+            return cells_.size() <= max_cells;
+          })) {
+        cells_.clear();
+        everywhere_ = true;
+        return;
+      }
+    }
+  }
+
+  bool touches(const CGAL::Bbox_3& box) const {
+    if (everywhere_) return true;
+    return !for_each_cell(box, [&](std::uint64_t key) { return cells_.count(key) == 0; });
+  }
+
+ private:
+  static constexpr std::size_t max_cells = std::size_t{1} << 22;
+
+  // `visit` on the key of each cell `box` touches while it returns true; false when it stopped.
+  template <class Visit>
+  bool for_each_cell(const CGAL::Bbox_3& box, Visit&& visit) const {
+    const auto lo = [&](double v) { return static_cast<std::int64_t>(std::floor(v / cell_)); };
+    const std::int64_t x0 = lo(box.xmin()), x1 = lo(box.xmax()), y0 = lo(box.ymin()), y1 = lo(box.ymax()),
+                       z0 = lo(box.zmin()), z1 = lo(box.zmax());
+    if ((x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1) > static_cast<std::int64_t>(max_cells)) return false;
+    for (std::int64_t x = x0; x <= x1; ++x)
+      for (std::int64_t y = y0; y <= y1; ++y)
+        for (std::int64_t z = z0; z <= z1; ++z) {
+          const std::uint64_t key = (static_cast<std::uint64_t>(x) & 0x1fffff) << 42 |
+                                    (static_cast<std::uint64_t>(y) & 0x1fffff) << 21 |
+                                    (static_cast<std::uint64_t>(z) & 0x1fffff);
+          if (!visit(key)) return false;
+        }
+    return true;
+  }
+
+  double cell_ = 1;
+  bool everywhere_ = false;
+  std::unordered_set<std::uint64_t> cells_;
+};
+
 // The patch ids of faces in self-intersecting pairs (-1: an original face).
 // Self-intersecting pairs with a face of the patches numbered `since` or later in them: only
 // those patches and the faces whose bounding box overlaps one of their faces' are tested (the raw
@@ -103,10 +160,14 @@ std::set<int> intersecting_patches(const Surface& sm, const Surface::Property_ma
       reach += patch_boxes.back().bbox();
     }
   if (patch_boxes.empty()) return {};
+  // Patches spread over the part have a reach of nearly the whole mesh (the blade's: 850k of its
+  // 950k faces, 1.7 s of box intersection): the faces kept for the box test are those touching a
+  // grid cell one of the patches' boxes touches.
+  const BoxGrid near_patches(patch_boxes);
   for (const FaceIndex f : sm.faces())
     if (patch[f] < since) {
       const Box box = box_of(f);
-      if (CGAL::do_overlap(box.bbox(), reach)) other_boxes.push_back(box);
+      if (CGAL::do_overlap(box.bbox(), reach) && near_patches.touches(box.bbox())) other_boxes.push_back(box);
     }
   std::vector<std::uint8_t> near(sm.number_of_faces() + sm.number_of_removed_faces(), 0);
   CGAL::box_intersection_d(patch_boxes.begin(), patch_boxes.end(), other_boxes.begin(), other_boxes.end(),
