@@ -45,6 +45,11 @@ constexpr std::size_t max_cubic_hole_edges = 150;
 // refined, a long border's patch has 10^4-10^5 faces, which are costly to make and to test,
 // and it crosses the surface wherever the plain one does (the unseen inside of a cup).
 constexpr std::size_t precheck_hole_edges = 200;
+// CGAL's refinement density for holes larger than fill_holes_mm (not faired: the plain patch
+// subdivided, flat where it was flat): 1 instead of CGAL's sqrt(2), triangles ~1.4x longer on
+// invented surface (the unseen bottom of a part), made and tested for crossings in about half
+// the time (docs/mesh.md step 7). Faired patches keep CGAL's density: their shape needs it.
+constexpr double unfaired_patch_density = 1.0;
 
 // Our triangles into a half-edge mesh, in order; the ones it cannot hold (non-manifold edge or
 // vertex) are counted and left out.
@@ -334,8 +339,13 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
         continue;
       }
       const std::vector<FaceIndex> plain = faces;
-      PMP::refine(sm, plain, std::back_inserter(faces), std::back_inserter(added), fill_options);
-      if (small && PMP::fair(sm, added, fill_options)) ++stats.holes_faired;
+      if (small) {
+        PMP::refine(sm, plain, std::back_inserter(faces), std::back_inserter(added), fill_options);
+        if (PMP::fair(sm, added, fill_options)) ++stats.holes_faired;
+      } else {
+        PMP::refine(sm, plain, std::back_inserter(faces), std::back_inserter(added),
+                    fill_options.density_control_factor(unfaired_patch_density));
+      }
     } else if (small) {
       const auto [faired, fo, vo] = PMP::triangulate_refine_and_fair_hole(sm, h, std::back_inserter(faces),
                                                                           std::back_inserter(added), fill_options);
@@ -343,7 +353,8 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
       (void)vo;
       if (faired) ++stats.holes_faired;
     } else {
-      PMP::triangulate_and_refine_hole(sm, h, std::back_inserter(faces), std::back_inserter(added), fill_options);
+      PMP::triangulate_and_refine_hole(sm, h, std::back_inserter(faces), std::back_inserter(added),
+                                       fill_options.density_control_factor(unfaired_patch_density));
     }
     for (const FaceIndex f : faces) patch[f] = next_patch;
     ++next_patch;
