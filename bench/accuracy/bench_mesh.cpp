@@ -193,6 +193,59 @@ Figures mesh_figures(const slscan::core::TriangleMesh& mesh, const Truth& truth)
   return f;
 }
 
+// The measured faces' own surface, not only their corners: each face's centre and edge
+// midpoints (weighted equally). A simplified mesh's vertices stay on the surface while its larger
+// faces cut chords across curvature; these samples see the chords.
+std::vector<Eigen::Vector3f> face_samples(const slscan::core::TriangleMesh& mesh) {
+  std::vector<Eigen::Vector3f> samples;
+  samples.reserve(4 * mesh.triangles.size());
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    if (!mesh.filled.empty() && mesh.filled[t]) continue;
+    const auto& tri = mesh.triangles[t];
+    const Eigen::Vector3f a = mesh.vertices[tri[0]], b = mesh.vertices[tri[1]], c = mesh.vertices[tri[2]];
+    samples.push_back((a + b + c) / 3);
+    samples.push_back((a + b) / 2);
+    samples.push_back((b + c) / 2);
+    samples.push_back((c + a) / 2);
+  }
+  return samples;
+}
+
+// By area rather than by face: a simplified mesh keeps small faces where the surface curves
+// (where the error is largest) and merges flat regions into few large ones, so per-face and
+// per-vertex figures over-weight the curved regions. Distance at each measured face's centre and
+// edge midpoints weighted by a quarter of its area; the share of measured area > 10 deg off truth.
+struct AreaFigures {
+  double rms_um = 0, bad_area_percent = 0;
+};
+AreaFigures area_weighted(const slscan::core::TriangleMesh& mesh, const Truth& truth) {
+  double w_sum = 0, d2_sum = 0, area = 0, bad = 0;
+  const double cos10 = std::cos(10 * std::numbers::pi / 180);
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    if (!mesh.filled.empty() && mesh.filled[t]) continue;
+    const auto& tri = mesh.triangles[t];
+    const Eigen::Vector3f a = mesh.vertices[tri[0]], b = mesh.vertices[tri[1]], c = mesh.vertices[tri[2]];
+    const Eigen::Vector3f cross = (b - a).cross(c - a);
+    const double w = 0.5 * static_cast<double>(cross.norm());
+    float d2 = 0;
+    const std::int64_t k = truth.index->nearest_within((a + b + c) / 3, 1.0f, d2);
+    if (k < 0) continue;
+    area += w;
+    if (cross.normalized().dot(truth.normals[static_cast<std::size_t>(k)]) < cos10) bad += w;
+    for (const Eigen::Vector3f& p : {Eigen::Vector3f((a + b + c) / 3), Eigen::Vector3f((a + b) / 2),
+                                     Eigen::Vector3f((b + c) / 2), Eigen::Vector3f((c + a) / 2)}) {
+      const double s = signed_distance(p, truth);
+      if (std::isnan(s)) continue;
+      w_sum += w / 4;
+      d2_sum += w / 4 * s * s;
+    }
+  }
+  AreaFigures f;
+  if (w_sum > 0) f.rms_um = 1e3 * std::sqrt(d2_sum / w_sum);
+  if (area > 0) f.bad_area_percent = 100 * bad / area;
+  return f;
+}
+
 double ms_since(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
 // CPU time of the process, every thread: on a shared machine the wall time of a multi-threaded
@@ -359,6 +412,8 @@ void open3d_rows(const std::string& scene, const slscan::core::PointCloud& model
 static int run_bench(int argc, char** argv) {
   std::string size_name = "small", cache, dump;
   int repeats = 1;
+  std::size_t max_triangles = 0;
+  double simplify_tolerance_mm = 0;
   std::vector<std::string> scenes{"ballbar", "sphere", "blade", "teacup"};
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
@@ -376,13 +431,29 @@ static int run_bench(int argc, char** argv) {
         return 2;
       }
       repeats = static_cast<int>(n);
+    } else if (arg == "--max-triangles" && i + 1 < argc) {
+      char* end = nullptr;
+      const long long n = std::strtoll(argv[++i], &end, 10);
+      if (end == argv[i] || *end != '\0' || n < 4) {
+        std::fprintf(stderr, "bench_mesh: --max-triangles wants a count >= 4, not '%s'\n", argv[i]);
+        return 2;
+      }
+      max_triangles = static_cast<std::size_t>(n);
+    } else if (arg == "--simplify-tolerance" && i + 1 < argc) {
+      char* end = nullptr;
+      simplify_tolerance_mm = std::strtod(argv[++i], &end);
+      if (end == argv[i] || *end != '\0' || !(simplify_tolerance_mm > 0 && simplify_tolerance_mm <= 1)) {
+        std::fprintf(stderr, "bench_mesh: --simplify-tolerance wants a distance in (0, 1] mm, not '%s'\n", argv[i]);
+        return 2;
+      }
     } else if (arg == "--scenes" && i + 1 < argc) {
       scenes.clear();
       std::stringstream list(argv[++i]);
       for (std::string s; std::getline(list, s, ',');) scenes.push_back(s);
     } else {
       std::fprintf(stderr,
-                   "usage: bench_mesh [--size small|full] [--scenes a,b] [--cache DIR] [--repeats N] [--dump DIR]\n");
+                   "usage: bench_mesh [--size small|full] [--scenes a,b] [--cache DIR] [--repeats N] [--dump DIR]\n"
+                   "                  [--max-triangles N] [--simplify-tolerance MM]  (adds simplified rows)\n");
       return 2;
     }
   }
@@ -436,61 +507,81 @@ static int run_bench(int argc, char** argv) {
                 points.p99_um, points.far);
     // Our raw mode's trim distance, applied to Open3D's mesh too (unused without Open3D).
     [[maybe_unused]] double raw_trim_mm = 0;
-    for (const auto mode : {slscan::core::MeshMode::raw, slscan::core::MeshMode::watertight}) {
-      slscan::core::MeshOptions options;
-      options.mode = mode;
-      slscan::core::MeshResult result;
-      Timing time;
-      for (int r = 0; r < repeats; ++r) {
-        const Stopwatch call;
-        result = slscan::mesh::build_mesh(model, options);
-        keep_fastest(time, call.elapsed(), r);
-      }
-      const auto check = slscan::mesh::check_mesh(result.mesh);
-      char extra[256];
-      std::snprintf(extra, sizeof extra,
-                    "cell %.3f mm; CGAL: %s, %zu self-intersecting pairs, %zu refused; holes %zu filled %zu open; "
-                    "%zu filled faces; %zu crossing triangles cut%s",
-                    result.cell_mm, check.closed ? "closed" : "open", check.self_intersections,
-                    check.rejected_triangles, result.stats.holes_filled, result.stats.holes_left_open,
-                    result.stats.filled_triangles, result.stats.crossing_triangles,
-                    result.stats.sides_separated ? "" : "; fit over both sides (fallback)");
-      // trim_factor x max(cell, spacing); the cell is at least the spacing with the default options.
-      if (mode == slscan::core::MeshMode::raw) raw_trim_mm = options.trim_factor * result.cell_mm;
-      if (!dump.empty()) {
-        std::vector<Eigen::Vector3f> crossing;
-        for (const std::size_t t : slscan::mesh::self_intersecting_triangles(result.mesh)) {
-          const auto& tri = result.mesh.triangles[t];
-          crossing.push_back(
-              (result.mesh.vertices[tri[0]] + result.mesh.vertices[tri[1]] + result.mesh.vertices[tri[2]]) / 3);
+    const bool simplify = max_triangles > 0 || simplify_tolerance_mm > 0;
+    for (const auto mode : {slscan::core::MeshMode::raw, slscan::core::MeshMode::watertight})
+      for (const bool simplified : {false, true}) {
+        if (simplified && !simplify) continue;
+        slscan::core::MeshOptions options;
+        options.mode = mode;
+        if (simplified) {
+          options.max_triangles = max_triangles;
+          options.simplify_tolerance_mm = simplify_tolerance_mm;
         }
-        dump_distances(std::filesystem::path(dump) /
-                           (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + "_self_intersecting.csv"),
-                       crossing, truth);
-        std::map<std::pair<std::uint32_t, std::uint32_t>, int> edges;
-        for (const auto& t : result.mesh.triangles)
-          for (int k = 0; k < 3; ++k) {
-            const std::uint32_t a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
-            ++edges[{std::min(a, b), std::max(a, b)}];
+        slscan::core::MeshResult result;
+        Timing time;
+        for (int r = 0; r < repeats; ++r) {
+          const Stopwatch call;
+          result = slscan::mesh::build_mesh(model, options);
+          keep_fastest(time, call.elapsed(), r);
+        }
+        const auto check = slscan::mesh::check_mesh(result.mesh);
+        const Figures faces = distances(face_samples(result.mesh), truth);
+        const AreaFigures by_area = area_weighted(result.mesh, truth);
+        char extra[640];
+        std::snprintf(
+            extra, sizeof extra,
+            "cell %.3f mm; CGAL: %s, %zu self-intersecting pairs, %zu refused; holes %zu filled %zu open; "
+            "%zu filled faces; %zu crossing triangles cut%s; face centres and edge midpoints RMS / p99 "
+            "%.1f / %.0f um; by area: RMS %.1f um, %.1f %% > 10 deg%s%s",
+            result.cell_mm, check.closed ? "closed" : "open", check.self_intersections, check.rejected_triangles,
+            result.stats.holes_filled, result.stats.holes_left_open, result.stats.filled_triangles,
+            result.stats.crossing_triangles, result.stats.sides_separated ? "" : "; fit over both sides (fallback)",
+            faces.rms_um, faces.p99_um, by_area.rms_um, by_area.bad_area_percent,
+            result.stats.simplified ? "; simplified" : "",
+            result.stats.simplify_skipped.empty() ? ""
+                                                  : ("; not simplified: " + result.stats.simplify_skipped).c_str());
+        // trim_factor x max(cell, spacing); the cell is at least the spacing with the default options.
+        if (mode == slscan::core::MeshMode::raw) raw_trim_mm = options.trim_factor * result.cell_mm;
+        if (!dump.empty()) {
+          std::vector<Eigen::Vector3f> crossing;
+          for (const std::size_t t : slscan::mesh::self_intersecting_triangles(result.mesh)) {
+            const auto& tri = result.mesh.triangles[t];
+            crossing.push_back(
+                (result.mesh.vertices[tri[0]] + result.mesh.vertices[tri[1]] + result.mesh.vertices[tri[2]]) / 3);
           }
-        std::vector<Eigen::Vector3f> border;
-        for (const auto& [e, n] : edges)
-          if (n == 1) border.push_back((result.mesh.vertices[e.first] + result.mesh.vertices[e.second]) / 2);
-        dump_distances(
-            std::filesystem::path(dump) / (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + "_border.csv"),
-            border, truth);
+          dump_distances(std::filesystem::path(dump) /
+                             (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + "_self_intersecting.csv"),
+                         crossing, truth);
+          std::map<std::pair<std::uint32_t, std::uint32_t>, int> edges;
+          for (const auto& t : result.mesh.triangles)
+            for (int k = 0; k < 3; ++k) {
+              const std::uint32_t a = t[static_cast<std::size_t>(k)], b = t[static_cast<std::size_t>((k + 1) % 3)];
+              ++edges[{std::min(a, b), std::max(a, b)}];
+            }
+          std::vector<Eigen::Vector3f> border;
+          for (const auto& [e, n] : edges)
+            if (n == 1) border.push_back((result.mesh.vertices[e.first] + result.mesh.vertices[e.second]) / 2);
+          dump_distances(
+              std::filesystem::path(dump) / (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + "_border.csv"),
+              border, truth);
+        }
+        if (!dump.empty())
+          dump_distances(std::filesystem::path(dump) / (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + ".csv"),
+                         measured_vertices(result.mesh), truth);
+        std::string mesher = std::string("VDB ") + slscan::core::mesh_mode_name(mode);
+        if (simplified) {
+          char how[96];
+          std::snprintf(how, sizeof how, ", simplified (max %zu, tolerance %g mm)", max_triangles,
+                        simplify_tolerance_mm);
+          mesher += how;
+        }
+        row(name, mesher, mesh_figures(result.mesh, truth), time, result.mesh.triangles.size(), extra);
+        // Where the time goes (the last repeat's steps), on stderr so the table stays a table.
+        std::string steps;
+        for (const auto& [step, ms] : result.stats.step_ms)
+          steps.append(steps.empty() ? "" : ", ").append(step).append(" ").append(std::to_string(std::lround(ms)));
+        std::fprintf(stderr, "%s %s steps (ms): %s\n", name.c_str(), slscan::core::mesh_mode_name(mode), steps.c_str());
       }
-      if (!dump.empty())
-        dump_distances(std::filesystem::path(dump) / (dump_stem + "_" + slscan::core::mesh_mode_name(mode) + ".csv"),
-                       measured_vertices(result.mesh), truth);
-      row(name, std::string("VDB ") + slscan::core::mesh_mode_name(mode), mesh_figures(result.mesh, truth), time,
-          result.mesh.triangles.size(), extra);
-      // Where the time goes (the last repeat's steps), on stderr so the table stays a table.
-      std::string steps;
-      for (const auto& [step, ms] : result.stats.step_ms)
-        steps.append(steps.empty() ? "" : ", ").append(step).append(" ").append(std::to_string(std::lround(ms)));
-      std::fprintf(stderr, "%s %s steps (ms): %s\n", name.c_str(), slscan::core::mesh_mode_name(mode), steps.c_str());
-    }
 #ifdef SLSCAN_HAVE_OPEN3D
     const open3d::geometry::PointCloud open3d_cloud = to_open3d(model);
     for (const int depth : {8, 9, 10}) open3d_rows(name, model, open3d_cloud, depth, repeats, raw_trim_mm, truth);

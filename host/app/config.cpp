@@ -136,6 +136,8 @@ void apply_sections(const json& config, core::ReconstructionOptions& o) {
       .read("adaptivity", o.mesh.adaptivity)
       .read("trim_factor", o.mesh.trim_factor)
       .read("fill_holes_mm", o.mesh.fill_holes_mm)
+      .read("max_triangles", o.mesh.max_triangles)
+      .read("simplify_tolerance_mm", o.mesh.simplify_tolerance_mm)
       .finish();
   if (!core::parse_mesh_mode(mesh_mode, o.mesh.mode))
     throw std::invalid_argument("config: mesh.mode must be \"raw\" or \"watertight\", not \"" + mesh_mode + "\"");
@@ -235,7 +237,9 @@ json config_to_json(const core::ReconstructionOptions& o) {
         {"kernel_factor", o.mesh.kernel_factor},
         {"adaptivity", o.mesh.adaptivity},
         {"trim_factor", o.mesh.trim_factor},
-        {"fill_holes_mm", o.mesh.fill_holes_mm}}},
+        {"fill_holes_mm", o.mesh.fill_holes_mm},
+        {"max_triangles", o.mesh.max_triangles},
+        {"simplify_tolerance_mm", o.mesh.simplify_tolerance_mm}}},
   };
 }
 

@@ -82,6 +82,34 @@ void add_mesh_options(CLI::App& command, MeshOverrides& mesh) {
           },
           "MM >= 0"));
   command
+      .add_option_function<std::size_t>(
+          "--max-triangles", [&mesh](const std::size_t& n) { mesh.max_triangles = n; },
+          "Mesh: at most this many triangles (edge collapse, flat regions first; 0: as many as the cell gives)")
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            const bool digits =
+                !text.empty() && text.size() <= 12 && text.find_first_not_of("0123456789") == std::string::npos;
+            if (digits && (std::stoull(text) == 0 || std::stoull(text) >= 4)) return {};
+            return "must be 0 (no limit) or a triangle count >= 4, not \"" + text + "\"";
+          },
+          "N"));
+  command
+      .add_option_function<double>(
+          "--simplify-tolerance", [&mesh](const double& mm) { mesh.simplify_tolerance_mm = mm; },
+          "Mesh: collapse edges while every triangle stays within this distance (mm, <= 1) of the full mesh: "
+          "coarse where flat, fine at edges (0: no bound)")
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            try {
+              std::size_t used = 0;
+              const double v = std::stod(text, &used);
+              if (used == text.size() && v >= 0 && v <= 1) return {};
+            } catch (const std::exception&) {
+            }
+            return "must be a distance in [0, 1] mm, not \"" + text + "\"";
+          },
+          "MM in [0, 1]"));
+  command
       .add_option("--mesh-formats", mesh.formats,
                   "Mesh files, comma-separated: ply, stl, obj, 3mf (default ply,stl; all in mm)")
       ->check(CLI::Validator(

@@ -333,7 +333,11 @@ json scan_result_to_json(const core::ScanResult& result) {
                    {"crossed_faces_removed", st.crossed_faces_removed},
                    {"holes_crossing_unrefined", st.holes_crossing_unrefined},
                    {"sides_separated", st.sides_separated},
-                   {"self_intersections", st.self_intersections}};
+                   {"self_intersections", st.self_intersections},
+                   {"triangles_before_simplify", st.triangles_before_simplify},
+                   {"simplified", st.simplified},
+                   {"simplify_attempts", st.simplify_attempts},
+                   {"simplify_skipped", st.simplify_skipped}};
   } else if (!result.mesh_error.empty()) {
     out["mesh"] = {{"error", result.mesh_error}};
   }

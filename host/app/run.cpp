@@ -154,8 +154,13 @@ void print_summary(const Console& console, const core::ScanResult& result, const
     for (const std::string* file : {&files.mesh_ply, &files.mesh_stl, &files.mesh_obj, &files.mesh_3mf})
       if (!file->empty()) written += (written.empty() ? "" : ", ") + *file;
     console.info(std::string("mesh (") + core::mesh_mode_name(result.mesh.mode) + ", cell " + cell +
-                 " mm): " + std::to_string(result.mesh.mesh.triangles.size()) + " triangles in " +
-                 seconds_text(result.mesh.stats.mesh_ms / 1000) + " -> " + written);
+                 " mm): " + std::to_string(result.mesh.mesh.triangles.size()) + " triangles" +
+                 (result.mesh.stats.simplified
+                      ? " (simplified from " + std::to_string(result.mesh.stats.triangles_before_simplify) + ")"
+                      : std::string()) +
+                 " in " + seconds_text(result.mesh.stats.mesh_ms / 1000) + " -> " + written);
+    if (!result.mesh.stats.simplify_skipped.empty())
+      console.warn("mesh not simplified: " + result.mesh.stats.simplify_skipped);
   } else if (!result.mesh_error.empty()) {
     console.warn("no mesh: " + result.mesh_error);
   }
@@ -236,6 +241,18 @@ void apply_mesh_overrides(const MeshOverrides& overrides, core::ReconstructionOp
                        "), which leaves every hole open");
     if (!(mm >= 0) || !std::isfinite(mm)) throw UsageError("--fill-holes must be a diameter >= 0 mm");
     options.mesh.fill_holes_mm = mm;
+  }
+  if (overrides.max_triangles) {
+    if (!options.build_mesh) throw UsageError("--max-triangles: this run makes no mesh (" + no_mesh() + ")");
+    if (*overrides.max_triangles > 0 && *overrides.max_triangles < 4)
+      throw UsageError("--max-triangles must be 0 (no limit) or >= 4, not " + std::to_string(*overrides.max_triangles));
+    options.mesh.max_triangles = *overrides.max_triangles;
+  }
+  if (overrides.simplify_tolerance_mm) {
+    const double mm = *overrides.simplify_tolerance_mm;
+    if (!options.build_mesh) throw UsageError("--simplify-tolerance: this run makes no mesh (" + no_mesh() + ")");
+    if (!(mm >= 0 && mm <= 1)) throw UsageError("--simplify-tolerance must be in [0, 1] mm");
+    options.mesh.simplify_tolerance_mm = mm;
   }
   options.check();
 }

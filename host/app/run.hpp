@@ -3,6 +3,7 @@
 #pragma once
 
 #include <atomic>
+#include <cstddef>
 #include <cstdint>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -86,9 +87,11 @@ class UsageError : public std::invalid_argument {
 
 // scan / reprocess: the mesh options of the command line, over the config file's mesh section.
 struct MeshOverrides {
-  std::string mode = {};                     // "" = the config's; watertight, raw or none
-  std::optional<double> fill_holes_mm = {};  // watertight only (mm, >= 0)
-  std::string formats = {};                  // "" = the config's; a list such as "ply,stl,obj,3mf"
+  std::string mode = {};                             // "" = the config's; watertight, raw or none
+  std::optional<double> fill_holes_mm = {};          // watertight only (mm, >= 0)
+  std::string formats = {};                          // "" = the config's; a list such as "ply,stl,obj,3mf"
+  std::optional<std::size_t> max_triangles = {};     // >= 4, or 0 for no limit
+  std::optional<double> simplify_tolerance_mm = {};  // [0, 1] mm
 };
 // Applies them and checks the result; throws UsageError naming the option.
 void apply_mesh_overrides(const MeshOverrides& overrides, core::ReconstructionOptions& options);

@@ -270,6 +270,9 @@ TEST(MeshOverrides, CommandLineOverTheConfig) {
   EXPECT_EQ(options.mesh_formats, (core::MeshFormats{false, true, false, true}));
   apply_mesh_overrides({.mode = "raw"}, options);
   EXPECT_EQ(options.mesh.mode, core::MeshMode::raw);
+  apply_mesh_overrides({.max_triangles = 200000, .simplify_tolerance_mm = 0.002}, options);
+  EXPECT_EQ(options.mesh.max_triangles, 200000u);
+  EXPECT_EQ(options.mesh.simplify_tolerance_mm, 0.002);
   apply_mesh_overrides({.mode = "none"}, options);
   EXPECT_FALSE(options.build_mesh);
   apply_mesh_overrides({.mode = "watertight"}, options);
@@ -290,6 +293,11 @@ TEST(MeshOverrides, CommandLineOverTheConfig) {
   refused({.fill_holes_mm = -1}, defaults, "--fill-holes must be a diameter >= 0 mm");
   refused({.fill_holes_mm = std::nan("")}, defaults, "--fill-holes must be a diameter >= 0 mm");
   refused({.formats = "ply,gltf"}, defaults, "--mesh-formats: unknown mesh format \"gltf\"");
+  refused({.max_triangles = 3}, defaults, "--max-triangles must be 0 (no limit) or >= 4, not 3");
+  refused({.mode = "none", .max_triangles = 5000}, defaults, "--max-triangles: this run makes no mesh (--mesh none)");
+  refused({.simplify_tolerance_mm = 2}, defaults, "--simplify-tolerance must be in [0, 1] mm");
+  refused({.simplify_tolerance_mm = std::nan("")}, defaults, "--simplify-tolerance must be in [0, 1] mm");
+  refused({.mode = "none", .simplify_tolerance_mm = 0.01}, defaults, "--simplify-tolerance: this run makes no mesh");
   refused({.mode = "none", .formats = "obj"}, defaults, "--mesh-formats: this run makes no mesh (--mesh none)");
   // The config's mode counts too.
   core::ReconstructionOptions raw_config;
@@ -298,6 +306,29 @@ TEST(MeshOverrides, CommandLineOverTheConfig) {
   core::ReconstructionOptions no_mesh_config;
   apply_config(json::parse(R"({"mesh": {"enabled": false}})"), no_mesh_config);
   refused({.formats = "obj"}, no_mesh_config, "(the config's mesh.enabled is false)");
+}
+
+// The simplification's two keys: read, written back into report.json's config, refused out of range.
+TEST(MeshSimplification, ConfigKeysRoundTripAndAbsurdValuesAreRefused) {
+  core::ReconstructionOptions options;
+  apply_config(json::parse(R"({"mesh": {"max_triangles": 150000, "simplify_tolerance_mm": 0.003}})"), options);
+  EXPECT_EQ(options.mesh.max_triangles, 150000u);
+  EXPECT_EQ(options.mesh.simplify_tolerance_mm, 0.003);
+  core::ReconstructionOptions again;
+  apply_config(config_to_json(options), again);
+  EXPECT_EQ(again.mesh.max_triangles, 150000u);
+  EXPECT_EQ(again.mesh.simplify_tolerance_mm, 0.003);
+  for (const char* text : {R"({"mesh": {"simplify_tolerance_mm": 5}})", R"({"mesh": {"max_triangles": 2}})",
+                           R"({"mesh": {"max_triangles": -1}})"}) {
+    core::ReconstructionOptions o;
+    EXPECT_THROW(
+        {
+          apply_config(json::parse(text), o);
+          o.check();
+        },
+        std::exception)
+        << text;
+  }
 }
 
 TEST(MeshFormats, ConfigFileSectionAndReport) {

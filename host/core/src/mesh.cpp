@@ -68,6 +68,11 @@ void MeshOptions::check() const {
     throw std::invalid_argument("mesh.min_piece_fraction must be in [0, 1]");
   if (!(fill_holes_mm >= 0) || !std::isfinite(fill_holes_mm))
     throw std::invalid_argument("mesh.fill_holes_mm must be >= 0");
+  // 0.1 mm is already 30x the points' noise at full resolution: a larger bound is a typo (um for mm).
+  if (!(simplify_tolerance_mm >= 0) || !std::isfinite(simplify_tolerance_mm) || simplify_tolerance_mm > 1)
+    throw std::invalid_argument("mesh.simplify_tolerance_mm must be in [0, 1] mm (0: no bound)");
+  if (max_triangles > 0 && max_triangles < 4)
+    throw std::invalid_argument("mesh.max_triangles must be 0 (no limit) or >= 4 (a closed surface needs 4)");
 }
 
 void MeshStats::add_step_ms(const std::string& step, double ms) {

@@ -999,7 +999,21 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   result.cell_mm = cell;
   core::MeshResult separated =
       level_set_mesh(points, normals, *kept_tree, intensity, scales, side_agreement_cosine, result, options, interrupt);
-  if (options.mode != core::MeshMode::watertight || separated.stats.holes_left_open == 0) return separated;
+  // 8. Fewer triangles, when asked for (simplify.cpp), on the mesh chosen.
+  const auto simplified = [&](core::MeshResult chosen) {
+    chosen.stats.triangles_before_simplify = chosen.mesh.triangles.size();
+    if (options.max_triangles > 0 || options.simplify_tolerance_mm > 0) {
+      const auto begin = std::chrono::steady_clock::now();
+      simplify_mesh(chosen.mesh, options, chosen.stats, interrupt);
+      if (chosen.stats.simplified) chosen.stats.closed = core::mesh_topology(chosen.mesh).closed();
+      const auto end = std::chrono::steady_clock::now();
+      chosen.stats.add_step_ms("simplify", std::chrono::duration<double, std::milli>(end - begin).count());
+      chosen.stats.mesh_ms = std::chrono::duration<double, std::milli>(end - start).count();
+    }
+    return chosen;
+  };
+  if (options.mode != core::MeshMode::watertight || separated.stats.holes_left_open == 0)
+    return simplified(std::move(separated));
   // A thin edge's patches crossed the surface and a hole stayed open: the surface of the fit
   // over both sides (closed where the separated one was not, less faithful at thin edges).
   core::MeshResult mixed =
@@ -1009,7 +1023,7 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
   for (std::size_t k = stats.step_ms.size(); k < other.stats.step_ms.size(); ++k)
     chosen.stats.add_step_ms(other.stats.step_ms[k].first, other.stats.step_ms[k].second);
   chosen.stats.mesh_ms = mixed.stats.mesh_ms;
-  return std::move(chosen);
+  return simplified(std::move(chosen));
 }
 
 }  // namespace slscan::mesh

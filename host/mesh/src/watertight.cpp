@@ -27,35 +27,14 @@
 #include <unordered_set>
 #include <vector>
 
+#include "half_edge_mesh.hpp"
 #include "slscan/mesh/mesher.hpp"
 
 namespace slscan::mesh {
-namespace {
 
-using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
-using Point = Kernel::Point_3;
-using Surface = CGAL::Surface_mesh<Point>;
-using VertexIndex = Surface::Vertex_index;
-using FaceIndex = Surface::Face_index;
-using HalfedgeIndex = Surface::Halfedge_index;
-namespace PMP = CGAL::Polygon_mesh_processing;
+namespace detail {
 
-constexpr std::size_t max_cubic_hole_edges = 150;
-// Borders at least this long have their plain patch tested for crossings before it is refined:
-// refined, a long border's patch has 10^4-10^5 faces, which are costly to make and to test,
-// and it crosses the surface wherever the plain one does (the unseen inside of a cup).
-constexpr std::size_t precheck_hole_edges = 200;
-// CGAL's refinement density for holes larger than fill_holes_mm (not faired: the plain patch
-// subdivided, flat where it was flat): 1 instead of CGAL's sqrt(2), triangles ~1.4x longer on
-// invented surface (the unseen bottom of a part), made and tested for crossings in about half
-// the time (docs/mesh.md step 7). Faired patches keep CGAL's density: their shape needs it.
-constexpr double unfaired_patch_density = 1.0;
-
-// Our triangles into a half-edge mesh, in order; the ones it cannot hold (non-manifold edge or
-// vertex) are counted and left out.
-// `triangle_of_face`, when given: the triangle each face came from.
-Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected,
-                   std::vector<std::size_t>* triangle_of_face = nullptr) {
+Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected, std::vector<std::size_t>* triangle_of_face) {
   Surface sm;
   sm.reserve(static_cast<Surface::size_type>(mesh.vertices.size()),
              static_cast<Surface::size_type>(3 * mesh.triangles.size() / 2 + 64),
@@ -74,6 +53,30 @@ Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected,
   }
   return sm;
 }
+
+}  // namespace detail
+
+namespace {
+
+using detail::FaceIndex;
+using detail::HalfedgeIndex;
+using detail::Kernel;
+using detail::Point;
+using detail::Surface;
+using detail::to_surface;
+using detail::VertexIndex;
+namespace PMP = CGAL::Polygon_mesh_processing;
+
+constexpr std::size_t max_cubic_hole_edges = 150;
+// Borders at least this long have their plain patch tested for crossings before it is refined:
+// refined, a long border's patch has 10^4-10^5 faces, which are costly to make and to test,
+// and it crosses the surface wherever the plain one does (the unseen inside of a cup).
+constexpr std::size_t precheck_hole_edges = 200;
+// CGAL's refinement density for holes larger than fill_holes_mm (not faired: the plain patch
+// subdivided, flat where it was flat): 1 instead of CGAL's sqrt(2), triangles ~1.4x longer on
+// invented surface (the unseen bottom of a part), made and tested for crossings in about half
+// the time (docs/mesh.md step 7). Faired patches keep CGAL's density: their shape needs it.
+constexpr double unfaired_patch_density = 1.0;
 
 std::vector<HalfedgeIndex> border_cycles(const Surface& sm) {
   std::vector<HalfedgeIndex> cycles;

@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -52,6 +53,12 @@ struct MeshOptions {
   // Watertight: holes whose border fits in this diameter (mm) are closed with a smooth (faired)
   // patch; larger ones with a minimal-area refined patch. 0: no fairing.
   double fill_holes_mm = 10;
+  // Fewer triangles (docs/mesh.md, "Fewer triangles"): at most this many (0: as many as the cell
+  // gives), and/or as few as keep every vertex of the full mesh within this distance (mm) of the
+  // simplified faces (0: no bound; with max_triangles 0, collapse until the bound stops it:
+  // coarse where flat, fine where curved).
+  std::size_t max_triangles = 0;
+  double simplify_tolerance_mm = 0;
 
   void check() const;  // throws std::invalid_argument naming the field
 };
@@ -90,6 +97,12 @@ struct MeshStats {
   // The fit took one side's points only (thin edges kept); false: watertight fell back to the
   // fit over both sides because a hole stayed open with one side's (docs/mesh.md).
   bool sides_separated = true;
+  // Simplification (max_triangles / simplify_tolerance_mm): the count before it, whether it
+  // changed the mesh, and why not when it was asked for and did not ("" otherwise).
+  std::size_t triangles_before_simplify = 0;
+  bool simplified = false;
+  std::size_t simplify_attempts = 0;  // each after freezing where the last one crossed the surface
+  std::string simplify_skipped;
   double mesh_ms = 0;  // meshing alone (wall)
   // Wall time of each step, in order (docs/mesh.md names them); a step run twice (watertight's
   // fall back to the fit over both sides) is summed.

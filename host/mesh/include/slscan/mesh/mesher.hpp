@@ -28,6 +28,17 @@ core::MeshResult build_mesh(const core::PointCloud& cloud, const core::MeshOptio
 void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
                  const core::InterruptionPoint& interrupt = {}, std::vector<std::size_t>* crossed = nullptr);
 
+// Fewer triangles (options.max_triangles, options.simplify_tolerance_mm; nothing when neither
+// asks for it): CGAL's edge collapse, cheapest first by Garland-Heckbert quadrics, each edge
+// merged into its better end (every vertex stays one of the mesh's, with its normal and
+// intensity); faces turned by more than 90 deg refused; with a tolerance, no vertex of the mesh
+// given left farther than it from the simplified faces; the border between filled and measured
+// faces kept. A closed mesh without self-intersections stays so or is left as it was
+// (stats.simplify_skipped says why). Updates stats (filled_triangles, simplified). build_mesh
+// calls it last.
+void simplify_mesh(core::TriangleMesh& mesh, const core::MeshOptions& options, core::MeshStats& stats,
+                   const core::InterruptionPoint& interrupt = {});
+
 // CGAL's checks of a mesh (for reports and tests): closed 2-manifold (every triangle accepted
 // by a half-edge mesh, no border), self-intersecting face pairs, outward orientation.
 struct MeshCheck {
