@@ -297,8 +297,7 @@ void simplify_mesh(core::TriangleMesh& mesh, const core::MeshOptions& options, c
     for (const auto e : sm.edges()) {
       const HalfedgeIndex h = sm.halfedge(e), o = sm.opposite(h);
       bool keep = frozen[sm.source(h).idx()] || frozen[sm.target(h).idx()];
-      if (with_filled && !sm.is_border(h) && !sm.is_border(o))
-        keep = keep || filled[sm.face(h)] != filled[sm.face(o)];
+      if (with_filled && !sm.is_border(h) && !sm.is_border(o)) keep = keep || filled[sm.face(h)] != filled[sm.face(o)];
       constrained[e] = keep;
     }
     const CollapseFilter filter{std::cos(max_turn_deg * std::numbers::pi / 180),
