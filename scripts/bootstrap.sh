@@ -36,6 +36,8 @@ packages=(
   libzstd-dev zstd
   # host
   libeigen3-dev libopencv-dev libopencv-contrib-dev libtbb-dev libnanoflann-dev libcgal-dev libcli11-dev
+  # host: run-time SIMD dispatch of decode and triangulation (Google Highway)
+  libhwy-dev
   # host: the mesher (slscan_mesh, docs/mesh.md): OpenVDB level sets (+ Imath); CGAL (above) closes and checks it
   libopenvdb-dev libimath-dev
   # host: the mesh as 3MF (lib3mf 1.8, slscan_io)

@@ -163,8 +163,6 @@ class ProjectorViewDecoder {
  private:
   template <class Pixel>
   void store_frame(std::size_t pattern_index, const Pixel* data, std::size_t stride);
-  template <class Pixel>
-  void decode_rows(int row_begin, int row_end, DecodedView& out, DecodeCounts& counts) const;
   void smooth(DecodedView& out);
 
   slproto::PatternPlan plan_;

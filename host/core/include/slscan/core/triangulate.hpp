@@ -49,6 +49,34 @@ struct TriangulatedView {
   TriangulateCounts counts;
 };
 
+namespace detail {
+
+// The per-pixel solve's constants (src/triangulate_tile.cpp, dispatched per SIMD target).
+struct TriangulateTileParams {
+  // proj_from_cam: Xp = R d t + b for the camera point t d. Double: the per-pixel solve is
+  // compute-light next to decoding, and float round-off alone reaches ~5e-4 projector px.
+  double r[9] = {};
+  double b[3] = {};
+  double k1 = 0, k2 = 0, k3 = 0, p1 = 0, p2 = 0;  // the projector's distortion
+  double fx = 0, fy = 0, cx = 0, cy = 0;
+  bool distorted = false;
+  int projector_width = 0, projector_height = 0;
+  int newton_iterations = 0;
+  double max_residual_px = 0, frustum_margin_px = 0, min_depth_mm = 0, max_depth_mm = 0;
+};
+
+// Why a pixel gave no point, in the order of TriangulateCounts.
+enum class TriangulateOutcome : std::uint8_t {
+  valid,
+  not_decoded,
+  no_intersection,
+  not_converged,
+  outside_frustum,
+  outside_depth
+};
+
+}  // namespace detail
+
 // Triangulates the decoded coordinates of one projector. Construct once per calibration and
 // projector; triangulate() is const and thread-safe.
 class ProjectorTriangulator {
@@ -69,31 +97,11 @@ class ProjectorTriangulator {
   slproto::CodingAxis axis() const { return axis_; }
 
  private:
-  enum class Outcome : std::uint8_t {
-    valid,
-    not_decoded,
-    no_intersection,
-    not_converged,
-    outside_frustum,
-    outside_depth
-  };
-  // Solves n (<= a tile) consecutive pixels of a row: points, quality and validity out, and
-  // each pixel's outcome for the counts. Branch-free passes over the tile (vectorised).
-  template <bool kColumns>
-  void solve_tile(int n, const float* ray_x, const float* ray_y, const float* coord, const float* quality_in,
-                  Eigen::Vector3f* points, float* quality_out, std::uint8_t* valid, Outcome* outcome) const;
-
   std::shared_ptr<const CameraRayTable> rays_;
   slproto::PinholeModel projector_;
   slproto::CodingAxis axis_;
   TriangulateOptions options_;
-  // proj_from_cam: Xp = R d t + b for the camera point t d. Double: the per-pixel solve is
-  // compute-light next to decoding, and float round-off alone reaches ~5e-4 projector px.
-  double r_[9];
-  double b_[3];
-  double k1_, k2_, k3_, p1_, p2_;
-  double fx_, fy_, cx_, cy_;
-  bool distorted_;
+  detail::TriangulateTileParams tile_{};
 };
 
 }  // namespace slscan::core
