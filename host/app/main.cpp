@@ -663,8 +663,22 @@ int main(int argc, char** argv) {
     }
     (void)tbb::finalize(workers, std::nothrow);
     return code;
+  } catch (const std::bad_alloc&) {
+    // Out of memory while the command line was being built and parsed, before the command's own
+    // handlers: in an address space with barely room to start (prlimit, ulimit -v).
+    try {
+      std::cerr << "slscan: out of memory before the command started (" << memory_situation() << ")\n";
+    } catch (...) {
+      std::fputs("slscan: out of memory before the command started (the address-space limit (ulimit -v) or RAM)\n",
+                 stderr);
+    }
+    return exit_resources;
+  } catch (const std::exception& e) {
+    std::fputs("slscan: internal error: ", stderr);
+    std::fputs(e.what(), stderr);
+    std::fputs("\n", stderr);
+    return exit_internal;
   } catch (...) {
-    // run_command_line turns every std::exception into its message; this is anything else.
     std::fputs("slscan: internal error: an exception of unknown type\n", stderr);
     return exit_internal;
   }

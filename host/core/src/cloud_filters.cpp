@@ -10,7 +10,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "cloud_filters_kdtree.hpp"
+#include "neighbour_grid.hpp"
 #include "slproto/number_text.hpp"
 
 namespace slscan::core {
@@ -100,22 +100,16 @@ FilterResult statistical_outlier_removal(const PointCloud& cloud, const Statisti
     for (std::size_t i = 0; i < n; ++i) all.kept_indices.push_back(static_cast<std::uint32_t>(i));
     return all;
   }
-  const detail::KdTree tree(cloud.points);
-  const auto& order = tree.spatial_order();
   std::vector<float> mean_distance(n);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 2048), [&](const tbb::blocked_range<std::size_t>& r) {
-    std::vector<std::uint32_t> idx(k);
-    std::vector<float> d2(k);
-    for (std::size_t q = r.begin(); q < r.end(); ++q) {
-      const std::size_t i = order[q];
-      const std::size_t found = tree.knn(cloud.points[i], k, idx.data(), d2.data());
-      float sum = 0;
-      for (std::size_t j = 1; j < found; ++j) sum += std::sqrt(d2[j]);
-      mean_distance[i] = sum / static_cast<float>(found - 1);
-    }
+  detail::for_each_k_nearest(cloud.points, k, [&](std::size_t i, const detail::KNearest& nearest) {
+    // The point itself (or a copy of it) adds 0: the mean is over the other found - 1.
+    float sum = 0;
+    for (std::size_t j = 0; j < nearest.count; ++j) sum += std::sqrt(nearest.squared_distance[j]);
+    mean_distance[i] = sum / static_cast<float>(nearest.count - 1);
   });
   using Sums = std::pair<double, double>;
-  const Sums sums = tbb::parallel_reduce(
+  // Deterministic: the same partial sums in the same order on any thread timing.
+  const Sums sums = tbb::parallel_deterministic_reduce(
       tbb::blocked_range<std::size_t>(0, n, 8192), Sums{0, 0},
       [&](const tbb::blocked_range<std::size_t>& r, Sums s) {
         for (std::size_t i = r.begin(); i < r.end(); ++i) {
@@ -208,16 +202,10 @@ FilterResult radius_outlier_removal(const PointCloud& cloud, const RadiusOutlier
   const std::size_t n = cloud.size();
   std::vector<std::uint8_t> keep(n, 1);
   if (n > 0) {
-    const detail::KdTree tree(cloud.points);
-    const auto& order = tree.spatial_order();
-    const auto needed = static_cast<std::size_t>(options.min_neighbors) + 1;  // the point itself counts
-    const auto radius = static_cast<float>(options.radius_mm);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 2048), [&](const tbb::blocked_range<std::size_t>& r) {
-      for (std::size_t q = r.begin(); q < r.end(); ++q) {
-        const std::size_t i = order[q];
-        keep[i] = tree.count_within(cloud.points[i], radius, needed) >= needed;
-      }
-    });
+    const auto needed = static_cast<std::uint32_t>(options.min_neighbors) + 1;  // the point itself counts
+    const std::vector<std::uint32_t> counts =
+        detail::count_within(cloud.points, static_cast<float>(options.radius_mm), needed);
+    for (std::size_t i = 0; i < n; ++i) keep[i] = counts[i] >= needed;
   }
   FilterResult result = keep_flagged(cloud, keep);
   result.threshold = options.radius_mm;

@@ -9,7 +9,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "cloud_filters_kdtree.hpp"
+#include "neighbour_grid.hpp"
 
 namespace slscan::core {
 namespace {
@@ -91,39 +91,42 @@ std::vector<Eigen::Vector3f> pca_normals(const PointCloud& cloud, const PcaNorma
   }
   std::vector<Eigen::Vector3f> normals(cloud.size(), Eigen::Vector3f(kNaN, kNaN, kNaN));
   if (cloud.size() < 3) return normals;
-  const detail::KdTree tree(cloud.points);
-  const auto& order = tree.spatial_order();
   const auto k = static_cast<std::size_t>(options.k);
   const Eigen::Vector3f axis = options.axis_direction.normalized();
-  tbb::parallel_for(
-      tbb::blocked_range<std::size_t>(0, cloud.size(), 1024), [&](const tbb::blocked_range<std::size_t>& range) {
-        std::vector<std::uint32_t> indices(k);
-        std::vector<float> d2(k);
-        for (std::size_t q = range.begin(); q < range.end(); ++q) {
-          const std::size_t i = order[q];
-          const Eigen::Vector3f p = cloud.points[i];
-          const std::size_t found = tree.knn(p, k, indices.data(), d2.data());
-          if (found < 3) continue;
-          Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-          Eigen::Matrix3d outer = Eigen::Matrix3d::Zero();
-          for (std::size_t j = 0; j < found; ++j) {
-            const Eigen::Vector3d d = (cloud.points[indices[j]] - p).cast<double>();
-            sum += d;
-            outer.noalias() += d * d.transpose();
-          }
-          const Eigen::Vector3d mean = sum / static_cast<double>(found);
-          Eigen::Vector3f normal = smallest_eigenvector(outer / static_cast<double>(found) - mean * mean.transpose());
-          Eigen::Vector3f outward;
-          if (toward_camera) {
-            outward = options.view_camera_centres[cloud.view_id[i]] - p;
-          } else {
-            const Eigen::Vector3f rel = p - options.axis_point;
-            outward = rel - axis * axis.dot(rel);
-          }
-          if (normal.dot(outward) < 0) normal = -normal;
-          normals[i] = normal;
-        }
-      });
+  detail::for_each_k_nearest(cloud.points, k, [&](std::size_t i, const detail::KNearest& nearest) {
+    if (nearest.count < 3) return;
+    const Eigen::Vector3f p = nearest.query;
+    // Sums of offsets from the point (a few tenths of a mm): float holds them to ~1e-8 mm^2,
+    // four orders below the noise's variance; the eigen solve is in double.
+    float s[3] = {0, 0, 0}, ss[6] = {0, 0, 0, 0, 0, 0};
+    for (std::size_t j = 0; j < nearest.count; ++j) {
+      const std::uint32_t at = nearest.at[j];
+      const float dx = nearest.x[at] - p.x(), dy = nearest.y[at] - p.y(), dz = nearest.z[at] - p.z();
+      s[0] += dx;
+      s[1] += dy;
+      s[2] += dz;
+      ss[0] += dx * dx;
+      ss[1] += dx * dy;
+      ss[2] += dx * dz;
+      ss[3] += dy * dy;
+      ss[4] += dy * dz;
+      ss[5] += dz * dz;
+    }
+    const double count = static_cast<double>(nearest.count);
+    const Eigen::Vector3d mean = Eigen::Vector3d(s[0], s[1], s[2]) / count;
+    Eigen::Matrix3d outer;
+    outer << ss[0], ss[1], ss[2], ss[1], ss[3], ss[4], ss[2], ss[4], ss[5];
+    Eigen::Vector3f normal = smallest_eigenvector(outer / count - mean * mean.transpose());
+    Eigen::Vector3f outward;
+    if (toward_camera) {
+      outward = options.view_camera_centres[cloud.view_id[i]] - p;
+    } else {
+      const Eigen::Vector3f rel = p - options.axis_point;
+      outward = rel - axis * axis.dot(rel);
+    }
+    if (normal.dot(outward) < 0) normal = -normal;
+    normals[i] = normal;
+  });
   return normals;
 }
 
