@@ -13,6 +13,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <bit>
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -147,7 +148,9 @@ struct KNearest {
 inline void select_k_smallest(std::uint64_t* keys, std::size_t count, std::size_t k, float limit,
                               std::vector<std::uint64_t>& spill) {
   constexpr std::uint32_t kBands = 32;
-  const float scale = limit > 0 && limit < std::numeric_limits<float>::infinity() ? kBands / limit : 0.0f;
+  // One band for all when the limit is infinite or so small that the scale would overflow.
+  const float raw_scale = limit > 0 ? kBands / limit : 0.0f;
+  const float scale = std::isfinite(raw_scale) ? raw_scale : 0.0f;
   const auto band = [&](std::uint64_t key) {
     const float d2 = std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32));
     return std::min(kBands - 1, static_cast<std::uint32_t>(d2 * scale));
