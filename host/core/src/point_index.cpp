@@ -1,10 +1,11 @@
 #include "slscan/core/point_index.hpp"
 
-#include "cloud_filters_kdtree.hpp"
+#include "nearest_tree.hpp"
 
 namespace slscan::core {
 
-PointIndex::PointIndex(const std::vector<Eigen::Vector3f>& points) : tree_(std::make_unique<detail::KdTree>(points)) {}
+PointIndex::PointIndex(const std::vector<Eigen::Vector3f>& points)
+    : tree_(std::make_unique<detail::NearestTree>(points)) {}
 PointIndex::~PointIndex() = default;
 PointIndex::PointIndex(PointIndex&&) noexcept = default;
 PointIndex& PointIndex::operator=(PointIndex&&) noexcept = default;

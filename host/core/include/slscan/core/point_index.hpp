@@ -1,6 +1,6 @@
 // Nearest-neighbour queries over a fixed set of points, for code outside slscan_core (benches
-// comparing a model with the rig's true surface, tests). The same k-d tree the stages use
-// (nanoflann), behind a header that stays free of nanoflann.
+// comparing a model with the rig's true surface, tests). The same tree ICP uses for its
+// correspondences (a balanced k-d tree with its points in tree order), behind a small header.
 #pragma once
 
 #include <Eigen/Core>
@@ -11,12 +11,12 @@
 namespace slscan::core {
 
 namespace detail {
-class KdTree;
+class NearestTree;
 }
 
 class PointIndex {
  public:
-  // `points` must outlive the index and must not move.
+  // Copies the points. Throws std::invalid_argument if one is not finite (naming it).
   explicit PointIndex(const std::vector<Eigen::Vector3f>& points);
   ~PointIndex();
   PointIndex(PointIndex&&) noexcept;
@@ -28,7 +28,7 @@ class PointIndex {
   std::int64_t nearest_within(const Eigen::Vector3f& query, float max_distance, float& squared_distance) const;
 
  private:
-  std::unique_ptr<detail::KdTree> tree_;
+  std::unique_ptr<detail::NearestTree> tree_;
 };
 
 }  // namespace slscan::core
