@@ -3,7 +3,15 @@
 //
 //   bench_accuracy [--size full|small] [--scenes ballbar,blade,teacup] [--views N] [--mesh]
 //                  [--no-noise] [--no-registration] [--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE]
-//                  [--outliers CSV]
+//                  [--outliers CSV] [--frame-period-ms P] [--turntable-deg-per-s S] [--prerender]
+//
+// Frames reach the reconstructor at a camera's pace: one every P ms (default 8.333, a DLP4500's
+// 8-bit pattern period), and between views the turntable's move (60 deg at S = 360 deg/s plus
+// 50 ms settle, the sim board's measured 217 ms). --frame-period-ms 0 feeds them as fast as the
+// renderer draws (~150 a second at full resolution): then the time after the last frame holds a
+// backlog of views that no camera would leave. The renderer itself takes ~6.5 ms of a core per
+// frame, which a camera does not: --prerender draws every frame before the scan starts (~2.3 GB
+// at full resolution), so the scan has the machine to itself, as behind a real camera.
 //
 // Per view: each projector's cloud and the fused cloud (object and platform: the working
 // volume) against the per-pixel truth: median, RMS, fraction beyond 0.2 mm; points a projector
@@ -24,13 +32,17 @@
 #include <map>
 #include <nlohmann/json.hpp>
 #include <numbers>
+#include <optional>
+#include <span>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "slproto/calibration.hpp"
 #include "slrig/rig.hpp"
 #include "slscan/core/fusion.hpp"
+#include "slscan/core/huge_pages.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/core/point_index.hpp"
 #include "slscan/core/registration.hpp"
@@ -257,8 +269,16 @@ long peak_rss_mb() {
   return usage.ru_maxrss / 1024;
 }
 
+// How frames reach the reconstructor (0: as fast as they are rendered).
+struct Pacing {
+  double frame_period_ms = 1000.0 / 120.0;
+  double turntable_deg_per_s = 360;
+  double settle_ms = 50;
+  bool prerender = false;
+};
+
 Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool mesh, bool noise, int decode_smoothing,
-               int quadratic_radius, bool registration, std::FILE* outliers_csv) {
+               int quadratic_radius, bool registration, std::FILE* outliers_csv, const Pacing& pacing) {
   auto scene_or = slrig::scene_preset(name, size);
   if (!scene_or) throw std::runtime_error(scene_or.error().message);
   scene_or->sensor.noise = noise;
@@ -279,16 +299,51 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   std::vector<ViewTruth> truths;
   double render_s = 0;
   std::vector<std::uint8_t> frame;
+  const int bytes_per_pixel = scene.sensor.bit_depth > 8 ? 2 : 1;
+  auto keep_truth = [&](const slrig::ViewRenderer& renderer) {
+    const auto& t = renderer.ground_truth();
+    truths.push_back(ViewTruth{t.width, t.height, t.points, t.normals, t.object_id, t.lit, t.cam_from_table});
+  };
+  // --prerender: every frame drawn before the scan starts, so the renderer takes no CPU from it.
+  std::vector<std::vector<std::vector<std::uint8_t>>> rendered(views);  // [view][frame]
+  if (pacing.prerender)
+    for (std::size_t view = 0; view < views; ++view) {
+      const slrig::ViewRenderer renderer(scene, scene.view_angles_deg[view], static_cast<int>(view));
+      for (int side = 0; side < 2; ++side)
+        for (std::size_t p = 0; p < plan.size(); ++p) {
+          const auto t0 = Clock::now();
+          rendered[view].emplace_back(renderer.frame_bytes());
+          renderer.render(static_cast<slproto::ProjectorSide>(side), p, rendered[view].back());
+          render_s += std::chrono::duration<double>(Clock::now() - t0).count();
+        }
+      keep_truth(renderer);
+    }
+  const bool paced = pacing.frame_period_ms > 0;
+  const auto period = std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double, std::milli>(paced ? pacing.frame_period_ms : 0.0));
+  auto due = Clock::now();
+  int late_frames = 0;  // rendered after their due time (the renderer shares the CPU with the scan)
   for (std::size_t view = 0; view < views; ++view) {
     const double angle = scene.view_angles_deg[view];
-    slrig::ViewRenderer renderer(scene, angle, static_cast<int>(view));
-    frame.resize(renderer.frame_bytes());
-    const int bytes_per_pixel = scene.sensor.bit_depth > 8 ? 2 : 1;
+    if (paced && view > 0)
+      due += std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double, std::milli>(
+          std::abs(angle - scene.view_angles_deg[view - 1]) / pacing.turntable_deg_per_s * 1000 + pacing.settle_ms));
+    std::optional<slrig::ViewRenderer> renderer;
+    if (!pacing.prerender) {
+      renderer.emplace(scene, angle, static_cast<int>(view));
+      frame.resize(renderer->frame_bytes());
+    }
     for (int side = 0; side < 2; ++side)
       for (std::size_t p = 0; p < plan.size(); ++p) {
-        const auto t0 = Clock::now();
-        renderer.render(static_cast<slproto::ProjectorSide>(side), p, frame);
-        render_s += std::chrono::duration<double>(Clock::now() - t0).count();
+        std::span<const std::uint8_t> bytes;
+        if (pacing.prerender) {
+          bytes = rendered[view][static_cast<std::size_t>(side) * plan.size() + p];
+        } else {
+          const auto t0 = Clock::now();
+          renderer->render(static_cast<slproto::ProjectorSide>(side), p, frame);
+          render_s += std::chrono::duration<double>(Clock::now() - t0).count();
+          bytes = frame;
+        }
         slscan::core::FrameInfo info;
         info.view_index = static_cast<int>(view);
         info.commanded_angle_deg = info.reported_angle_deg = angle;
@@ -296,11 +351,18 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
         info.pattern_index = p;
         info.bytes_per_pixel = bytes_per_pixel;
         info.stride_bytes = static_cast<std::size_t>(width) * static_cast<std::size_t>(bytes_per_pixel);
-        reconstructor.add_frame(info, std::as_bytes(std::span(frame)));
+        if (paced) {
+          if (Clock::now() > due) {
+            ++late_frames;
+            due = Clock::now();
+          }
+          std::this_thread::sleep_until(due);
+          due += period;
+        }
+        reconstructor.add_frame(info, std::as_bytes(bytes));
       }
-    const auto& t = renderer.ground_truth();
-    ViewTruth truth{t.width, t.height, t.points, t.normals, t.object_id, t.lit, t.cam_from_table};
-    truths.push_back(std::move(truth));
+    if (renderer) keep_truth(*renderer);
+    rendered[view] = {};
   }
   const auto finish_start = Clock::now();
   slscan::core::ScanResult result = reconstructor.finish();
@@ -449,6 +511,11 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   for (const auto& [stage, ms] : result.stage_ms) stages[stage] = ms;
   out["after_last_frame_ms"] = {{"total", finish_ms}, {"stages", stages}};
   out["render_s"] = render_s;
+  out["pacing"] = {{"frame_period_ms", pacing.frame_period_ms},
+                   {"turntable_deg_per_s", pacing.turntable_deg_per_s},
+                   {"settle_ms", paced ? pacing.settle_ms : 0.0},
+                   {"late_frames", late_frames},
+                   {"prerendered", pacing.prerender}};
   out["peak_rss_mb"] = peak_rss_mb();
   return out;
 }
@@ -456,11 +523,13 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
 }  // namespace
 
 int main(int argc, char** argv) try {
+  slscan::core::run_with_huge_pages(argv);  // as slscan does: the same allocator behind the same code
   std::string size_name = "full", json_path, outliers_path;
   std::vector<std::string> scenes{"ballbar", "blade", "teacup"};
   int max_views = 6;
   bool mesh = false, noise = true, registration = true;
   int decode_smoothing = -1, quadratic_radius = -1;  // -1: the decoder's defaults
+  Pacing pacing;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&]() -> std::string {
@@ -490,11 +559,22 @@ int main(int argc, char** argv) try {
         outliers_path = value();
       } else if (arg == "--json") {
         json_path = value();
+      } else if (arg == "--frame-period-ms") {
+        pacing.frame_period_ms = std::stod(value());
+        if (!(pacing.frame_period_ms >= 0 && pacing.frame_period_ms <= 10000))
+          throw std::invalid_argument("--frame-period-ms must be in [0, 10000]");
+      } else if (arg == "--prerender") {
+        pacing.prerender = true;
+      } else if (arg == "--turntable-deg-per-s") {
+        pacing.turntable_deg_per_s = std::stod(value());
+        if (!(pacing.turntable_deg_per_s > 0 && pacing.turntable_deg_per_s <= 1e6))
+          throw std::invalid_argument("--turntable-deg-per-s must be in (0, 1e6]");
       } else {
         std::fprintf(stderr,
                      "usage: bench_accuracy [--size full|small] [--scenes a,b] [--views N] [--mesh] [--no-noise] "
                      "[--no-registration] "
-                     "[--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE] [--outliers CSV]\n");
+                     "[--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE] [--outliers CSV] "
+                     "[--frame-period-ms P] [--turntable-deg-per-s S] [--prerender]\n");
         return 2;
       }
     } catch (const std::exception& e) {
@@ -521,8 +601,8 @@ int main(int argc, char** argv) try {
   Json report = Json::array();
   for (const auto& name : scenes) {
     try {
-      Json scene =
-          run_scene(name, size, max_views, mesh, noise, decode_smoothing, quadratic_radius, registration, outliers);
+      Json scene = run_scene(name, size, max_views, mesh, noise, decode_smoothing, quadratic_radius, registration,
+                             outliers, pacing);
       std::printf("%s\n", scene.dump(1).c_str());
       std::fflush(stdout);
       report.push_back(std::move(scene));

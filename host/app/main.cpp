@@ -20,6 +20,7 @@
 #include "real_data.hpp"
 #include "run.hpp"
 #include "slproto/messages.hpp"
+#include "slscan/core/huge_pages.hpp"
 #include "slscan/io/io_error.hpp"
 #include "status.hpp"
 #include "worker_threads.hpp"
@@ -652,6 +653,7 @@ static void start_threads_or_warn() noexcept {
 // has no room for them the command runs on one thread, and the process does not wait for a
 // half-started worker at exit.
 int main(int argc, char** argv) {
+  slscan::core::run_with_huge_pages(argv);  // first: it may re-execute the program
   default_terminate = std::set_terminate(on_terminate);
   try {
     tbb::task_scheduler_handle workers{tbb::attach{}};

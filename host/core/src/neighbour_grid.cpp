@@ -48,14 +48,14 @@ Bounds bounds_of(const std::vector<Eigen::Vector3f>& points) {
 // Sorts (cell number << 32 | index), the indices ascending, by cell number: three stable counting
 // passes over 11-bit digits (the indices keep their order within a cell). ~4x faster than a
 // comparison sort on two threads.
-void sort_by_cell_number(std::unique_ptr<std::uint64_t[]>& keys, std::size_t n) {
+void sort_by_cell_number(LargeArray<std::uint64_t>& keys, std::size_t n) {
   constexpr int kDigitBits = 11;
   constexpr std::size_t kDigits = std::size_t{1} << kDigitBits;
   std::vector<std::uint32_t> counts(3 * kDigits, 0);
   for (std::size_t i = 0; i < n; ++i)
     for (int pass = 0; pass < 3; ++pass)
       ++counts[pass * kDigits + ((keys[i] >> (32 + pass * kDigitBits)) & (kDigits - 1))];
-  auto scratch = std::make_unique_for_overwrite<std::uint64_t[]>(n);
+  auto scratch = make_large_array<std::uint64_t>(n);
   for (int pass = 0; pass < 3; ++pass) {
     std::uint32_t* start = counts.data() + pass * kDigits;
     std::uint32_t sum = 0;
@@ -95,11 +95,11 @@ NeighbourGrid::NeighbourGrid(const std::vector<Eigen::Vector3f>& points, double 
                       nz = static_cast<std::uint64_t>(max_cell_[2]) + 1;
   const bool numbered =
       static_cast<double>(max_cell_[0] + 1) * static_cast<double>(ny) * static_cast<double>(nz) < 4294967296.0;
-  // Written in full before read: no zero-filling of fresh memory (make_unique_for_overwrite).
-  std::unique_ptr<std::uint64_t[]> numbered_keys;
+  // Written in full before read: no zero-filling of fresh memory; in 2 MB pages (large_array.hpp).
+  LargeArray<std::uint64_t> numbered_keys;
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;
   if (numbered) {
-    numbered_keys = std::make_unique_for_overwrite<std::uint64_t[]>(n);
+    numbered_keys = make_large_array<std::uint64_t>(n);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const tbb::blocked_range<std::size_t>& r) {
       for (std::size_t i = r.begin(); i < r.end(); ++i) {
         std::int64_t c[3];
@@ -136,10 +136,10 @@ NeighbourGrid::NeighbourGrid(const std::vector<Eigen::Vector3f>& points, double 
   cell_start_.push_back(static_cast<std::uint32_t>(n));
 
   size_ = n;
-  sorted_index_ = std::make_unique_for_overwrite<std::uint32_t[]>(n);
-  x_ = std::make_unique_for_overwrite<float[]>(n);
-  y_ = std::make_unique_for_overwrite<float[]>(n);
-  z_ = std::make_unique_for_overwrite<float[]>(n);
+  sorted_index_ = make_large_array<std::uint32_t>(n);
+  x_ = make_large_array<float>(n);
+  y_ = make_large_array<float>(n);
+  z_ = make_large_array<float>(n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 16384), [&](const tbb::blocked_range<std::size_t>& r) {
     for (std::size_t s = r.begin(); s < r.end(); ++s) {
       const std::uint32_t i = index_at(s);

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "cloud_filters_kdtree.hpp"
+#include "large_array.hpp"
 
 namespace slscan::core::detail {
 
@@ -116,8 +117,8 @@ class NeighbourGrid {
   std::vector<std::uint64_t> cell_keys_;   // sorted
   std::vector<std::uint32_t> cell_start_;  // points of cell c: sorted positions [start[c], start[c + 1])
   std::size_t size_ = 0;
-  std::unique_ptr<std::uint32_t[]> sorted_index_;  // cloud index of each sorted position
-  std::unique_ptr<float[]> x_, y_, z_;             // coordinates at the sorted positions
+  LargeArray<std::uint32_t> sorted_index_;  // cloud index of each sorted position
+  LargeArray<float> x_, y_, z_;             // coordinates at the sorted positions
   KeyTable table_;
   std::vector<std::uint64_t> group_keys_;   // sorted; a group's key packs its cells' coordinates / 8
   std::vector<std::uint32_t> group_start_;  // cells of group g: group_cells_[start[g], start[g + 1])
