@@ -7,11 +7,12 @@
 // Open3D's screened Poisson (TriangleMesh::CreateFromPointCloudPoisson) at depths 8, 9 and 10,
 // as it comes, trimmed by its densities (Open3D's way) and trimmed to the data (our raw mode's
 // rule), measured by the same code (docs/mesh.md, "Against Open3D's screened Poisson").
-//   bench_mesh [--size small|full] [--scenes ballbar,sphere,blade,teacup] [--cache DIR] [--repeats N]
-//              [--dump DIR]
+//   bench_mesh [--size small|full] [--scenes ballbar,sphere,blade,teacup] [--modes raw,watertight] [--no-peers]
+//              [--cache DIR] [--repeats N] [--dump DIR]
 // --dump writes, per scene, the signed distance to the truth of every model point and of every
 // measured vertex of each mesh (CSV x,y,z,distance_um, rig frame), to see where the error sits.
 // --cache keeps each scene's model (PLY, rig frame) so that a second run meshes only.
+// --no-peers leaves Open3D's rows out; --modes raw|watertight meshes in those modes only.
 // --repeats N meshes each row N times and prints the fastest (wall; the machine is shared), with
 // the CPU time of all threads of that run.
 #include <sys/resource.h>
@@ -35,6 +36,7 @@
 
 #include "slproto/pattern_plan.hpp"
 #include "slrig/rig.hpp"
+#include "slscan/core/huge_pages.hpp"
 #include "slscan/core/mesh.hpp"
 #include "slscan/core/point_index.hpp"
 #include "slscan/core/registration.hpp"
@@ -415,6 +417,8 @@ static int run_bench(int argc, char** argv) {
   std::size_t max_triangles = 0;
   double simplify_tolerance_mm = 0;
   std::vector<std::string> scenes{"ballbar", "sphere", "blade", "teacup"};
+  [[maybe_unused]] bool peers = true;  // read only with Open3D
+  std::vector<slscan::core::MeshMode> modes{slscan::core::MeshMode::raw, slscan::core::MeshMode::watertight};
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg == "--size" && i + 1 < argc) {
@@ -446,14 +450,27 @@ static int run_bench(int argc, char** argv) {
         std::fprintf(stderr, "bench_mesh: --simplify-tolerance wants a distance in (0, 1] mm, not '%s'\n", argv[i]);
         return 2;
       }
+    } else if (arg == "--no-peers") {
+      peers = false;
+    } else if (arg == "--modes" && i + 1 < argc) {
+      modes.clear();
+      std::stringstream list(argv[++i]);
+      for (std::string s; std::getline(list, s, ',');) {
+        if (s != "raw" && s != "watertight") {
+          std::fprintf(stderr, "bench_mesh: --modes takes raw and/or watertight, not '%s'\n", s.c_str());
+          return 2;
+        }
+        modes.push_back(s == "raw" ? slscan::core::MeshMode::raw : slscan::core::MeshMode::watertight);
+      }
     } else if (arg == "--scenes" && i + 1 < argc) {
       scenes.clear();
       std::stringstream list(argv[++i]);
       for (std::string s; std::getline(list, s, ',');) scenes.push_back(s);
     } else {
       std::fprintf(stderr,
-                   "usage: bench_mesh [--size small|full] [--scenes a,b] [--cache DIR] [--repeats N] [--dump DIR]\n"
-                   "                  [--max-triangles N] [--simplify-tolerance MM]  (adds simplified rows)\n");
+                   "usage: bench_mesh [--size small|full] [--scenes a,b] [--modes raw,watertight] [--no-peers]\n"
+                   "                  [--cache DIR] [--repeats N] [--dump DIR] [--max-triangles N] "
+                   "[--simplify-tolerance MM]  (adds simplified rows)\n");
       return 2;
     }
   }
@@ -508,7 +525,7 @@ static int run_bench(int argc, char** argv) {
     // Our raw mode's trim distance, applied to Open3D's mesh too (unused without Open3D).
     [[maybe_unused]] double raw_trim_mm = 0;
     const bool simplify = max_triangles > 0 || simplify_tolerance_mm > 0;
-    for (const auto mode : {slscan::core::MeshMode::raw, slscan::core::MeshMode::watertight})
+    for (const auto mode : modes)
       for (const bool simplified : {false, true}) {
         if (simplified && !simplify) continue;
         slscan::core::MeshOptions options;
@@ -584,7 +601,8 @@ static int run_bench(int argc, char** argv) {
       }
 #ifdef SLSCAN_HAVE_OPEN3D
     const open3d::geometry::PointCloud open3d_cloud = to_open3d(model);
-    for (const int depth : {8, 9, 10}) open3d_rows(name, model, open3d_cloud, depth, repeats, raw_trim_mm, truth);
+    if (peers)
+      for (const int depth : {8, 9, 10}) open3d_rows(name, model, open3d_cloud, depth, repeats, raw_trim_mm, truth);
 #endif
   }
   std::printf("\npeak RSS %ld MB\n", peak_rss_mb());
@@ -592,6 +610,7 @@ static int run_bench(int argc, char** argv) {
 }
 
 int main(int argc, char** argv) {
+  slscan::core::run_with_huge_pages(argv);  // as slscan does: the same allocator behind the same code
   try {
     return run_bench(argc, argv);
   } catch (const std::exception& e) {

@@ -1,10 +1,12 @@
 // The nearest-within-a-gate tree against brute force, query by query: a scan-like surface with
 // outliers, a flat sheet, a line, heaps of duplicates, tiny and empty clouds, queries on, near,
-// between and far from the cloud, gates from tight to unbounded.
+// between and far from the cloud, gates from tight to unbounded; and search(), the mesher's
+// visitor over the points within a radius, against brute force too.
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -12,7 +14,7 @@
 #include <stdexcept>
 #include <vector>
 
-#include "nearest_tree.hpp"
+#include "slscan/core/detail/nearest_tree.hpp"
 
 namespace {
 
@@ -164,6 +166,94 @@ TEST(NearestTree, AnswersAreTheSameOnOneAndTwoThreads) {
   std::size_t hits = 0;
   for (auto f : one) hits += f >= 0 ? 1 : 0;
   EXPECT_GT(hits, queries.size() / 2);
+}
+
+// A result set as the mesher's: every point strictly within a fixed radius.
+struct WithinRadius {
+  float radius2;
+  std::vector<std::pair<std::uint32_t, float>> found;
+  bool addPoint(float d2, std::uint32_t i) {
+    found.emplace_back(i, d2);
+    return true;
+  }
+  float worstDist() const { return radius2; }
+};
+
+// search() gives each point strictly within the radius once, with its distance to the last bit.
+TEST(NearestTreeSearch, GivesEveryPointWithinTheRadiusOnce) {
+  Points points = bumpy_sphere(30000, 20, 11);
+  for (std::size_t i = 0; i < 500; ++i) points[i + 20000] = points[i];  // duplicates
+  const NearestTree tree(points);
+  const Points queries = queries_for(points, 0.5f, 600, 12);
+  std::size_t total = 0;
+  for (float radius : {0.05f, 0.8f, 3.0f}) {
+    for (std::size_t q = 0; q < queries.size(); ++q) {
+      const Eigen::Vector3f& x = queries[q];
+      std::vector<std::pair<std::uint32_t, float>> expected;
+      for (std::size_t i = 0; i < points.size(); ++i) {
+        const float dx = points[i].x() - x.x(), dy = points[i].y() - x.y(), dz = points[i].z() - x.z();
+        const float d = dx * dx + dy * dy + dz * dz;
+        if (d < radius * radius) expected.emplace_back(static_cast<std::uint32_t>(i), d);
+      }
+      WithinRadius result{radius * radius, {}};
+      tree.search(result, x);
+      std::sort(result.found.begin(), result.found.end());
+      ASSERT_EQ(result.found, expected) << "query " << q << " radius " << radius;
+      total += expected.size();
+    }
+  }
+  EXPECT_GT(total, 10000u);  // the radii reach many points, not none
+}
+
+// The mesher's nearest-two search: worstDist() shrinks as points are added, and no point nearer
+// than the second-nearest is pruned on the way.
+TEST(NearestTreeSearch, AShrinkingRadiusFindsTheTwoNearest) {
+  struct TwoNearest {
+    float d[2] = {std::numeric_limits<float>::max(), std::numeric_limits<float>::max()};
+    bool addPoint(float dist, std::uint32_t) {
+      if (dist < d[0]) {
+        d[1] = d[0];
+        d[0] = dist;
+      } else if (dist < d[1]) {
+        d[1] = dist;
+      }
+      return true;
+    }
+    float worstDist() const { return d[1]; }
+  };
+  const Points points = bumpy_sphere(20000, 15, 13);
+  const NearestTree tree(points);
+  for (const auto& x : queries_for(points, 0.3f, 500, 14)) {
+    std::vector<float> all;
+    for (const auto& p : points) {
+      const float dx = p.x() - x.x(), dy = p.y() - x.y(), dz = p.z() - x.z();
+      all.push_back(dx * dx + dy * dy + dz * dz);
+    }
+    std::partial_sort(all.begin(), all.begin() + 2, all.end());
+    TwoNearest result;
+    tree.search(result, x);
+    ASSERT_EQ(result.d[0], all[0]);
+    ASSERT_EQ(result.d[1], all[1]);
+  }
+}
+
+// addPoint() returning false stops the search: a count that needs only k points sees exactly k.
+TEST(NearestTreeSearch, StopsWhenTheResultSetIsFull) {
+  struct FirstK {
+    std::size_t k, seen = 0;
+    bool addPoint(float, std::uint32_t) { return ++seen < k; }
+    float worstDist() const { return 4.0f; }
+  };
+  const Points points = bumpy_sphere(20000, 10, 15);
+  const NearestTree tree(points);
+  FirstK first{5};
+  tree.search(first, points[3]);
+  EXPECT_EQ(first.seen, 5u);
+  // Empty clouds and non-finite queries visit nothing.
+  FirstK none{5};
+  NearestTree(Points{}).search(none, Eigen::Vector3f::Zero());
+  tree.search(none, Eigen::Vector3f(0, std::nanf(""), 0));
+  EXPECT_EQ(none.seen, 0u);
 }
 
 }  // namespace

@@ -1,4 +1,4 @@
-#include "nearest_tree.hpp"
+#include "slscan/core/detail/nearest_tree.hpp"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -58,7 +58,7 @@ struct NearestTree::Search {
     const float far = offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2];
     // The slack keeps a point whose rounded distance ties the best from being pruned by the
     // rounding of the bound: the answer is the brute-force one to the last bit.
-    if (far <= best * 1.000001f) {
+    if (far <= best * kPruneSlack) {
       if (diff < 0)
         visit(2 * node + 1, depth + 1, middle, end, offset);
       else
@@ -140,7 +140,7 @@ std::int64_t NearestTree::nearest_within(const Eigen::Vector3f& query, float max
   Search search{*this, {query.x(), query.y(), query.z()}, squared_distance};
   float offset[3];
   for (int a = 0; a < 3; ++a) offset[a] = std::max({lo_[a] - query[a], query[a] - hi_[a], 0.0f});
-  if (offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2] > search.best * 1.000001f) return -1;
+  if (offset[0] * offset[0] + offset[1] * offset[1] + offset[2] * offset[2] > search.best * kPruneSlack) return -1;
   search.visit(1, 0, 0, size_, offset);
   squared_distance = search.best;
   return search.best_position < 0 ? -1 : static_cast<std::int64_t>(entries_[search.best_position].index);

@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "cloud_filters_kdtree.hpp"
-#include "large_array.hpp"
+#include "slscan/core/detail/large_array.hpp"
 
 namespace slscan::core::detail {
 

@@ -1,6 +1,6 @@
 #include "slscan/core/point_index.hpp"
 
-#include "nearest_tree.hpp"
+#include "slscan/core/detail/nearest_tree.hpp"
 
 namespace slscan::core {
 

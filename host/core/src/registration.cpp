@@ -15,8 +15,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "nearest_tree.hpp"
 #include "slproto/number_text.hpp"
+#include "slscan/core/detail/nearest_tree.hpp"
 
 namespace slscan::core {
 namespace {

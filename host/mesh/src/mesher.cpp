@@ -17,12 +17,13 @@
 #include <cstdlib>
 #include <memory>
 #include <mutex>
-#include <nanoflann.hpp>
 #include <numeric>
 #include <stdexcept>
 #include <string>
 #include <unordered_set>
 #include <vector>
+
+#include "slscan/core/detail/nearest_tree.hpp"
 
 namespace slscan::mesh {
 namespace {
@@ -40,19 +41,17 @@ constexpr std::size_t pinhole_max_edges = 40;
 constexpr double pinhole_max_cells = 6;
 constexpr int blocks_per_leaf = openvdb::FloatTree::LeafNodeType::DIM / fit_block;
 
-// A nanoflann k-d tree over a point array, with the result sets the mesher needs. Built on one
-// thread and searched without sorting: every query visits the points in the tree's fixed
-// traversal order, so the sums below do not depend on thread timing.
+// A k-d tree over a point array (core's NearestTree: built on two threads, points copied side by
+// side in tree order), with the result sets the mesher needs. Searched without sorting: every
+// query visits the points in the tree's fixed order, so the sums below do not depend on thread
+// timing.
 class Tree {
  public:
-  explicit Tree(const std::vector<Eigen::Vector3f>& points) : adaptor_{&points} {
-    index_ = std::make_unique<Index>(3, adaptor_, nanoflann::KDTreeSingleIndexAdaptorParams(16));
-    index_->buildIndex();
-  }
+  explicit Tree(const std::vector<Eigen::Vector3f>& points) : index_(points) {}
 
   template <class Result>
   void search(Result& result, const Eigen::Vector3f& query) const {
-    index_->findNeighbors(result, query.data(), nanoflann::SearchParams(0, 0, false));
+    index_.search(result, query);
   }
 
   // The nearest point within `gate` (or -1) and its squared distance.
@@ -159,19 +158,7 @@ class Tree {
   };
 
  private:
-  struct Adaptor {
-    const std::vector<Eigen::Vector3f>* points;
-    std::size_t kdtree_get_point_count() const { return points->size(); }
-    float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points)[i][static_cast<Eigen::Index>(dim)]; }
-    template <class Box>
-    bool kdtree_get_bbox(Box&) const {
-      return false;
-    }
-  };
-  using Index = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor, float, std::uint32_t>,
-                                                    Adaptor, 3, std::uint32_t>;
-  Adaptor adaptor_;
-  std::unique_ptr<Index> index_;
+  core::detail::NearestTree index_;
 };
 
 // The implicit surface: an algebraic sphere fitted to the points and normals around x (APSS,

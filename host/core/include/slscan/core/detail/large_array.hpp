@@ -2,7 +2,8 @@
 // copy. On Linux its memory is asked for in 2 MB pages (transparent huge pages, where the system
 // allows them on request): first touches of 4 kB pages cost ~3.6 ms per MB on the VM our
 // figures come from (measured: 16 MB in 47 ms, 1 ms in 2 MB pages), more than the work done
-// in them. Elsewhere, or if the system declines, it is plain memory. Private to slscan_core.
+// in them. Elsewhere, or if the system declines, it is plain memory. Shared by slscan_core and
+// slscan_mesh; not part of the public API.
 #pragma once
 
 #include <cstddef>
