@@ -205,35 +205,34 @@ TEST(NearestTreeSearch, GivesEveryPointWithinTheRadiusOnce) {
   EXPECT_GT(total, 10000u);  // the radii reach many points, not none
 }
 
-// The mesher's nearest-two search: worstDist() shrinks as points are added, and no point nearer
-// than the second-nearest is pruned on the way.
-TEST(NearestTreeSearch, AShrinkingRadiusFindsTheTwoNearest) {
-  struct TwoNearest {
-    float d[2] = {std::numeric_limits<float>::max(), std::numeric_limits<float>::max()};
+// A k-nearest search as the mesher's nearest-two: worstDist() shrinks as points are added, and
+// no point nearer than the k-th nearest may be pruned on the way.
+TEST(NearestTreeSearch, AShrinkingRadiusFindsTheKNearest) {
+  struct KNearest {
+    std::vector<float> sorted;  // the k smallest squared distances so far, ascending
+    std::size_t k;
     bool addPoint(float dist, std::uint32_t) {
-      if (dist < d[0]) {
-        d[1] = d[0];
-        d[0] = dist;
-      } else if (dist < d[1]) {
-        d[1] = dist;
-      }
+      sorted.insert(std::upper_bound(sorted.begin(), sorted.end(), dist), dist);
+      if (sorted.size() > k) sorted.resize(k);
       return true;
     }
-    float worstDist() const { return d[1]; }
+    float worstDist() const { return sorted.size() < k ? std::numeric_limits<float>::max() : sorted[k - 1]; }
   };
   const Points points = bumpy_sphere(20000, 15, 13);
   const NearestTree tree(points);
-  for (const auto& x : queries_for(points, 0.3f, 500, 14)) {
-    std::vector<float> all;
-    for (const auto& p : points) {
-      const float dx = p.x() - x.x(), dy = p.y() - x.y(), dz = p.z() - x.z();
-      all.push_back(dx * dx + dy * dy + dz * dz);
+  for (const std::size_t k : {1, 2, 7}) {
+    for (const auto& x : queries_for(points, 0.3f, 300, 14 + k)) {
+      std::vector<float> all;
+      for (const auto& p : points) {
+        const float dx = p.x() - x.x(), dy = p.y() - x.y(), dz = p.z() - x.z();
+        all.push_back(dx * dx + dy * dy + dz * dz);
+      }
+      std::sort(all.begin(), all.end());
+      all.resize(k);
+      KNearest result{{}, k};
+      tree.search(result, x);
+      ASSERT_EQ(result.sorted, all) << "k " << k;
     }
-    std::partial_sort(all.begin(), all.begin() + 2, all.end());
-    TwoNearest result;
-    tree.search(result, x);
-    ASSERT_EQ(result.d[0], all[0]);
-    ASSERT_EQ(result.d[1], all[1]);
   }
 }
 
