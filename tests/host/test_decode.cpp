@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <functional>
 #include <limits>
 #include <random>
@@ -38,6 +39,11 @@ struct SceneModel {
   std::uint32_t seed = 7;
 };
 
+// The row-major index of pixel (u, v).
+std::size_t pixel(int u, int v, int width) {
+  return static_cast<std::size_t>(v) * static_cast<std::size_t>(width) + static_cast<std::size_t>(u);
+}
+
 // What the DMD shows at continuous coordinate x: binary patterns are constant over each
 // projector pixel [c - 0.5, c + 0.5) (so their edges fall between pixel centres); the sine is
 // smooth (defocus removes the pixel steps, leaving its phase).
@@ -57,7 +63,7 @@ std::vector<std::vector<std::uint16_t>> render(const PatternPlan& plan, const Sc
   std::vector<std::vector<std::uint16_t>> frames(plan.size());
   for (std::size_t p = 0; p < plan.size(); ++p) {
     auto& frame = frames[p];
-    frame.resize(static_cast<std::size_t>(scene.width * scene.height));
+    frame.resize(static_cast<std::size_t>(scene.width) * static_cast<std::size_t>(scene.height));
     for (int v = 0; v < scene.height; ++v)
       for (int u = 0; u < scene.width; ++u) {
         const double x = scene.coordinate(u, v);
@@ -73,8 +79,7 @@ std::vector<std::vector<std::uint16_t>> render(const PatternPlan& plan, const Sc
           value = std::pow(pattern_at(plan, p, x), scene.gamma);
         }
         double dn = scale * (scene.black_dn + scene.gain(u, v) * value) + scale * scene.noise_dn * noise(rng);
-        frame[static_cast<std::size_t>(v * scene.width + u)] =
-            static_cast<std::uint16_t>(std::clamp(std::round(dn), 0.0, top));
+        frame[pixel(u, v, scene.width)] = static_cast<std::uint16_t>(std::clamp(std::round(dn), 0.0, top));
       }
   }
   return frames;
@@ -106,7 +111,7 @@ Errors errors(const DecodedView& view, const SceneModel& scene, double period) {
   std::vector<double> abs_errors;
   for (int v = 0; v < scene.height; ++v)
     for (int u = 0; u < scene.width; ++u) {
-      const auto i = static_cast<std::size_t>(v * scene.width + u);
+      const auto i = pixel(u, v, scene.width);
       if (view.mask[i] != DecodeMask::valid) continue;
       const double err = std::abs(view.coordinate[i] - scene.coordinate(u, v));
       if (err >= 0.5 * period) ++e.jumps;
@@ -132,9 +137,9 @@ TEST(Decode, RecoversExactCoordinateNoiseFree16Bit) {
   scene.coordinate = ramp;
   scene.bit_depth = 16;
   const DecodedView view = decode(plan, scene);
-  EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(scene.width) * static_cast<std::size_t>(scene.height));
   const Errors e = errors(view, scene, 8);
-  EXPECT_EQ(e.compared, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(e.compared, static_cast<std::size_t>(scene.width) * static_cast<std::size_t>(scene.height));
   EXPECT_EQ(e.jumps, 0u);
   // 16-bit quantisation of a 180 x 257 DN sine: ~1e-5 rad of phase; the fast atan2 adds ~2e-7.
   EXPECT_LT(e.max_abs, 1e-3);
@@ -207,7 +212,7 @@ TEST(Decode, MasksLowContrastLowModulationAndSaturation) {
   std::size_t checked = 0;
   for (int v = 0; v < scene.height; ++v)
     for (int u = 0; u < scene.width; ++u) {
-      const auto i = static_cast<std::size_t>(v * scene.width + u);
+      const auto i = pixel(u, v, scene.width);
       const DecodeMask expected =
           u < 100 ? DecodeMask::low_contrast : (u < 200 ? DecodeMask::saturated : DecodeMask::valid);
       ASSERT_EQ(view.mask[i], expected) << "pixel " << u << ", " << v;
@@ -217,11 +222,11 @@ TEST(Decode, MasksLowContrastLowModulationAndSaturation) {
       }
       ++checked;
     }
-  EXPECT_EQ(checked, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(checked, static_cast<std::size_t>(scene.width) * static_cast<std::size_t>(scene.height));
   EXPECT_EQ(view.counts.low_contrast, static_cast<std::size_t>(100 * scene.height));
   EXPECT_EQ(view.counts.saturated, static_cast<std::size_t>(100 * scene.height));
   EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(120 * scene.height));
-  EXPECT_EQ(view.counts.total(), static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(view.counts.total(), static_cast<std::size_t>(scene.width) * static_cast<std::size_t>(scene.height));
 
   // Low modulation: white/black are fine but the fringes are washed out (a blur of exactly one
   // period cancels the sine), as on a surface far out of the projector's focus.
@@ -275,7 +280,7 @@ TEST(Decode, GrayCodeOnlyPlanGivesHalfPeriodCentres) {
   SceneModel scene;
   scene.coordinate = ramp;
   const DecodedView view = decode(plan, scene);
-  EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(view.counts.valid, static_cast<std::size_t>(scene.width) * static_cast<std::size_t>(scene.height));
   const Errors e = errors(view, scene, 8);
   // Half-period resolution: the centre of a 4-px cell is within 2 px of any point in it.
   EXPECT_LE(e.max_abs, 2.0 + 1e-6);
@@ -308,7 +313,7 @@ TEST(Decode, InverseGrayFramesGiveExactStepsWithoutWhiteBlack) {
     const double step = complementary ? 4.0 : 8.0;
     for (int v = 0; v < scene.height; ++v)
       for (int u = 0; u < scene.width; ++u) {
-        const auto i = static_cast<std::size_t>(v * scene.width + u);
+        const auto i = pixel(u, v, scene.width);
         if (u < 40 || u >= 300) {
           ASSERT_EQ(view.mask[i], DecodeMask::low_contrast) << "u " << u;
           ASSERT_TRUE(std::isnan(view.coordinate[i]));
@@ -342,7 +347,7 @@ TEST(Decode, InverseGrayContrastToleratesOneBitAtItsEdgeButNotTwo) {
   auto blur = [&](int bit, int inverse, int u0, int u1) {
     for (int v = 0; v < scene.height; ++v)
       for (int u = u0; u < u1; ++u) {
-        const auto i = static_cast<std::size_t>(v * scene.width + u);
+        const auto i = pixel(u, v, scene.width);
         frames[static_cast<std::size_t>(bit)][i] = 100;
         frames[static_cast<std::size_t>(inverse)][i] = 98;
       }
@@ -470,7 +475,7 @@ TEST(Decode, FramesInAnyOrderAndWithStride) {
     for (int v = 0; v < scene.height; ++v)
       for (int u = 0; u < scene.width; ++u)
         padded[static_cast<std::size_t>(v) * stride + static_cast<std::size_t>(u)] =
-            static_cast<std::uint8_t>(frames[p][static_cast<std::size_t>(v * scene.width + u)]);
+            static_cast<std::uint8_t>(frames[p][pixel(u, v, scene.width)]);
     decoder.add_frame(p, padded.data(), stride);
   }
   const DecodedView view = decoder.finish();
@@ -483,6 +488,59 @@ TEST(Decode, FramesInAnyOrderAndWithStride) {
   }
   // finish() readies the decoder for the next view: nothing is present any more.
   EXPECT_FALSE(decoder.complete());
+}
+
+// The scan pipeline decodes each projector-view into a result that held an earlier one (its
+// buffers reused): the result must be exactly a fresh decode's, whatever the earlier view held.
+TEST(Decode, FinishIntoAReusedResultEqualsAFreshOne) {
+  const PatternPlan plan;
+  auto feed = [&](ProjectorViewDecoder& decoder, const SceneModel& scene) {
+    const auto frames = render(plan, scene);
+    for (std::size_t p = 0; p < frames.size(); ++p) {
+      const std::vector<std::uint8_t> narrow(frames[p].begin(), frames[p].end());
+      decoder.add_frame(p, narrow.data(), static_cast<std::size_t>(scene.width));
+    }
+  };
+  SceneModel earlier;  // smoothed, every pixel lit
+  earlier.coordinate = ramp;
+  earlier.noise_dn = 1.5;
+  SceneModel next;  // not smoothed, a dark band masked, another slope
+  next.coordinate = [](int u, int v) { return 11.0 + 2.9 * u - 0.2 * v; };
+  next.gain = [](int u, int) { return u < 60 ? 2.0 : 170.0; };
+  next.noise_dn = 0.8;
+  next.seed = 99;
+  DecodeOptions smoothed, plain;
+  smoothed.smoothing_radius = 2;
+  plain.smoothing_radius = 0;
+  plain.self_check = true;
+
+  ProjectorViewDecoder first(plan, earlier.width, earlier.height, smoothed);
+  feed(first, earlier);
+  DecodedView reused;
+  first.finish(reused);
+  ASSERT_GT(reused.coordinate_noise_px, 0.0f);
+  ProjectorViewDecoder second(plan, next.width, next.height, plain);
+  feed(second, next);
+  second.finish(reused);
+  ProjectorViewDecoder fresh_decoder(plan, next.width, next.height, plain);
+  feed(fresh_decoder, next);
+  const DecodedView fresh = fresh_decoder.finish();
+
+  auto same_bits = [](const auto& a, const auto& b) {
+    return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(a[0])) == 0;
+  };
+  EXPECT_TRUE(same_bits(reused.coordinate, fresh.coordinate));
+  EXPECT_TRUE(same_bits(reused.quality, fresh.quality));
+  EXPECT_TRUE(same_bits(reused.intensity, fresh.intensity));
+  EXPECT_TRUE(same_bits(reused.mask, fresh.mask));
+  EXPECT_EQ(reused.counts.valid, fresh.counts.valid);
+  EXPECT_EQ(reused.counts.low_contrast + reused.counts.low_modulation,
+            fresh.counts.low_contrast + fresh.counts.low_modulation);
+  EXPECT_GT(fresh.counts.low_contrast + fresh.counts.low_modulation, 0u);  // the dark band is masked
+  EXPECT_EQ(reused.coordinate_noise_px, fresh.coordinate_noise_px);
+  EXPECT_EQ(reused.smoothing_max_deviation_px, fresh.smoothing_max_deviation_px);
+  EXPECT_EQ(reused.checks.ran, fresh.checks.ran);
+  EXPECT_EQ(reused.checks.sampled_pixels, fresh.checks.sampled_pixels);
 }
 
 TEST(Decode, RejectsMisuseWithClearErrors) {
@@ -532,7 +590,7 @@ TEST(Decode, TwelveBitFrames) {
   options.min_modulation_dn = 6.0f * 16;
   const DecodedView view = decode(plan, scene, options);
   const Errors e = errors(view, scene, 8);
-  EXPECT_EQ(e.compared, static_cast<std::size_t>(scene.width * scene.height));
+  EXPECT_EQ(e.compared, static_cast<std::size_t>(scene.width) * static_cast<std::size_t>(scene.height));
   EXPECT_EQ(e.jumps, 0u);
   EXPECT_LT(e.median_abs, 0.02);
 }
@@ -549,7 +607,7 @@ double quadratic_fit_at_centre(const DecodedView& raw, int u, int v, int q) {
   Vector6d rhs = Vector6d::Zero();
   for (int dv = -q; dv <= q; ++dv)
     for (int du = -q; du <= q; ++du) {
-      const double value = raw.coordinate[static_cast<std::size_t>((v + dv) * raw.width + u + du)];
+      const double value = raw.coordinate[pixel(u + du, v + dv, raw.width)];
       if (std::isnan(value)) return std::numeric_limits<double>::quiet_NaN();
       Vector6d basis;
       basis << 1.0, du, dv, double(du) * du, double(du) * dv, double(dv) * dv;
@@ -564,7 +622,7 @@ double quadratic_fit_at_centre(const DecodedView& raw, int u, int v, int q) {
 std::vector<float> reference_smoothing(const DecodedView& raw, float max_deviation, int quadratic_radius) {
   const int w = raw.width, h = raw.height;
   std::vector<float> out = raw.coordinate;
-  auto at = [&](int u, int v) { return raw.coordinate[static_cast<std::size_t>(v * w + u)]; };
+  auto at = [&](int u, int v) { return raw.coordinate[pixel(u, v, w)]; };
   for (int v = 1; v < h - 1; ++v) {
     const int r = (v >= 2 && v < h - 2) ? 2 : 1;
     for (int u = r; u < w - r; ++u) {
@@ -589,10 +647,10 @@ std::vector<float> reference_smoothing(const DecodedView& raw, float max_deviati
           rhs += basis * (value - c);
         }
       const int full = (2 * r + 1) * (2 * r + 1);
-      auto& result = out[static_cast<std::size_t>(v * w + u)];
+      auto& result = out[pixel(u, v, w)];
       if (n5 == full) {
         const double m5 = s5 / full - c, m3 = s3 / 9 - c;
-        const double tolerance = 0.8 / std::max<double>(raw.quality[static_cast<std::size_t>(v * w + u)], 1.0);
+        const double tolerance = 0.8 / std::max<double>(raw.quality[pixel(u, v, w)], 1.0);
         if (std::abs(m5) <= max_deviation) {
           const bool curved = r == 2 && std::abs(m5 - m3) > tolerance;
           result = static_cast<float>(c + (curved ? 1.5 * m3 - 0.5 * m5 : m5));
@@ -609,7 +667,7 @@ std::vector<float> reference_smoothing(const DecodedView& raw, float max_deviati
       const int q = quadratic_radius;
       if (q > 0 && u >= q && u < w - q && v >= q && v < h - q) {
         const double value = quadratic_fit_at_centre(raw, u, v, q);
-        const double agreement = 1.6 / std::max<double>(raw.quality[static_cast<std::size_t>(v * w + u)], 1.0);
+        const double agreement = 1.6 / std::max<double>(raw.quality[pixel(u, v, w)], 1.0);
         if (!std::isnan(value) && std::abs(value - c) <= max_deviation && std::abs(value - result) <= agreement)
           result = static_cast<float>(value);
       }
@@ -700,7 +758,7 @@ TEST(Decode, SmoothingIsUnbiasedOnACurvedSurface) {
     int n = 0;
     for (int v = 8; v < scene.height - 8; ++v)
       for (int u = 8; u < scene.width - 8; ++u) {
-        const auto i = static_cast<std::size_t>(v * scene.width + u);
+        const auto i = pixel(u, v, scene.width);
         if (view.mask[i] != DecodeMask::valid) continue;
         sum += view.coordinate[i] - scene.coordinate(u, v);
         ++n;
@@ -746,7 +804,7 @@ TEST(Decode, SmoothingReducesNoiseWithoutBiasAtMaskEdges) {
   int n = 0;
   for (int v = 2; v < scene.height - 2; ++v)
     for (int u = 100; u < 102; ++u) {
-      const auto i = static_cast<std::size_t>(v * scene.width + u);
+      const auto i = pixel(u, v, scene.width);
       ASSERT_EQ(smoothed.mask[i], DecodeMask::valid);
       signed_sum += smoothed.coordinate[i] - scene.coordinate(u, v);
       ++n;

@@ -133,6 +133,9 @@ void ProjectorViewDecoder::finish(DecodedView& out) {
   out.width = width_;
   out.height = height_;
   out.axis = plan_.config().axis;
+  // `out` may hold an earlier view: every field is set here or below, every pixel written.
+  out.coordinate_noise_px = 0;
+  out.smoothing_max_deviation_px = 0;
   out.coordinate.resize(n);
   out.quality.resize(n);
   out.intensity.resize(n);
