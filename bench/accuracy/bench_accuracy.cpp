@@ -4,6 +4,11 @@
 //   bench_accuracy [--size full|small] [--scenes ballbar,blade,teacup] [--views N] [--mesh]
 //                  [--no-noise] [--no-registration] [--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE]
 //                  [--outliers CSV] [--frame-period-ms P] [--turntable-deg-per-s S] [--prerender]
+//                  [--exposure-bracket F,F,...] [--material NAME]
+//
+// --exposure-bracket 1,0.25,0.125 captures every view at each of these fractions of the scene's
+// reference exposure and merges them per pixel (HDR, docs/hdr.md); --material NAME gives every
+// object that finish (e.g. the shiny blade in matte paint: the same shape, for comparison).
 //
 // Frames reach the reconstructor at a camera's pace: one every P ms (default 8.333, a DLP4500's
 // 8-bit pattern period), and between views the turntable's move (60 deg at S = 360 deg/s plus
@@ -277,12 +282,31 @@ struct Pacing {
   bool prerender = false;
 };
 
+// How the scene is exposed (docs/hdr.md): one exposure or a bracket, as fractions of the
+// scene's reference exposure; a finish for every object instead of the preset's.
+struct Exposing {
+  std::vector<double> bracket{1.0};
+  std::optional<slrig::Material> material;
+};
+
 Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool mesh, bool noise, int decode_smoothing,
-               int quadratic_radius, bool registration, std::FILE* outliers_csv, const Pacing& pacing) {
+               int quadratic_radius, bool registration, std::FILE* outliers_csv, const Pacing& pacing,
+               const Exposing& exposing) {
   auto scene_or = slrig::scene_preset(name, size);
   if (!scene_or) throw std::runtime_error(scene_or.error().message);
   scene_or->sensor.noise = noise;
+  if (exposing.material)
+    for (slrig::SceneObject& object : scene_or->objects) slrig::apply_material(object, *exposing.material);
   const slrig::Scene scene = *scene_or;
+  const double reference_us = scene.sensor.exposure_us;
+  const std::size_t exposures = exposing.bracket.size();
+  std::vector<double> bracket_us;
+  for (const double f : exposing.bracket) bracket_us.push_back(f * reference_us);
+  auto exposure_of = [&](std::size_t e) {
+    slrig::Exposure x;
+    if (exposing.bracket[e] != 1.0) x.exposure_us = bracket_us[e];
+    return x;
+  };
   const slproto::RigCalibration calibration = slrig::ground_truth_calibration(scene);
   const slproto::PatternPlan plan(calibration.pattern_plan);
   slscan::core::ReconstructionOptions options;
@@ -294,6 +318,7 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   options.build_mesh = mesh;
   const int width = scene.camera.width, height = scene.camera.height;
   slscan::core::ScanReconstructor reconstructor(calibration, plan, width, height, options);
+  if (exposures > 1) reconstructor.set_exposure_bracket(bracket_us, reference_us);
 
   const std::size_t views = std::min(scene.view_angles_deg.size(), static_cast<std::size_t>(std::max(1, max_views)));
   std::vector<ViewTruth> truths;
@@ -309,13 +334,14 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   if (pacing.prerender)
     for (std::size_t view = 0; view < views; ++view) {
       const slrig::ViewRenderer renderer(scene, scene.view_angles_deg[view], static_cast<int>(view));
-      for (int side = 0; side < 2; ++side)
-        for (std::size_t p = 0; p < plan.size(); ++p) {
-          const auto t0 = Clock::now();
-          rendered[view].emplace_back(renderer.frame_bytes());
-          renderer.render(static_cast<slproto::ProjectorSide>(side), p, rendered[view].back());
-          render_s += std::chrono::duration<double>(Clock::now() - t0).count();
-        }
+      for (std::size_t e = 0; e < exposures; ++e)
+        for (int side = 0; side < 2; ++side)
+          for (std::size_t p = 0; p < plan.size(); ++p) {
+            const auto t0 = Clock::now();
+            rendered[view].emplace_back(renderer.frame_bytes());
+            renderer.render(static_cast<slproto::ProjectorSide>(side), plan, p, rendered[view].back(), exposure_of(e));
+            render_s += std::chrono::duration<double>(Clock::now() - t0).count();
+          }
       keep_truth(renderer);
     }
   const bool paced = pacing.frame_period_ms > 0;
@@ -333,34 +359,36 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
       renderer.emplace(scene, angle, static_cast<int>(view));
       frame.resize(renderer->frame_bytes());
     }
-    for (int side = 0; side < 2; ++side)
-      for (std::size_t p = 0; p < plan.size(); ++p) {
-        std::span<const std::uint8_t> bytes;
-        if (pacing.prerender) {
-          bytes = rendered[view][static_cast<std::size_t>(side) * plan.size() + p];
-        } else {
-          const auto t0 = Clock::now();
-          renderer->render(static_cast<slproto::ProjectorSide>(side), p, frame);
-          render_s += std::chrono::duration<double>(Clock::now() - t0).count();
-          bytes = frame;
-        }
-        slscan::core::FrameInfo info;
-        info.view_index = static_cast<int>(view);
-        info.commanded_angle_deg = info.reported_angle_deg = angle;
-        info.projector = side;
-        info.pattern_index = p;
-        info.bytes_per_pixel = bytes_per_pixel;
-        info.stride_bytes = static_cast<std::size_t>(width) * static_cast<std::size_t>(bytes_per_pixel);
-        if (paced) {
-          if (Clock::now() > due) {
-            ++late_frames;
-            due = Clock::now();
+    for (std::size_t e = 0; e < exposures; ++e)
+      for (int side = 0; side < 2; ++side)
+        for (std::size_t p = 0; p < plan.size(); ++p) {
+          std::span<const std::uint8_t> bytes;
+          if (pacing.prerender) {
+            bytes = rendered[view][(e * 2 + static_cast<std::size_t>(side)) * plan.size() + p];
+          } else {
+            const auto t0 = Clock::now();
+            renderer->render(static_cast<slproto::ProjectorSide>(side), plan, p, frame, exposure_of(e));
+            render_s += std::chrono::duration<double>(Clock::now() - t0).count();
+            bytes = frame;
           }
-          std::this_thread::sleep_until(due);
-          due += period;
+          slscan::core::FrameInfo info;
+          info.view_index = static_cast<int>(view);
+          info.commanded_angle_deg = info.reported_angle_deg = angle;
+          info.projector = side;
+          info.pattern_index = p;
+          info.exposure_index = e;
+          info.bytes_per_pixel = bytes_per_pixel;
+          info.stride_bytes = static_cast<std::size_t>(width) * static_cast<std::size_t>(bytes_per_pixel);
+          if (paced) {
+            if (Clock::now() > due) {
+              ++late_frames;
+              due = Clock::now();
+            }
+            std::this_thread::sleep_until(due);
+            due += period;
+          }
+          reconstructor.add_frame(info, std::as_bytes(bytes));
         }
-        reconstructor.add_frame(info, std::as_bytes(bytes));
-      }
     if (renderer) keep_truth(*renderer);
     rendered[view] = {};
   }
@@ -397,6 +425,13 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
       pj["points_in_own_true_shadow"] = points_in_true_shadow(cloud, truth, s);
       pj["decode_ms"] = report.projectors[s].decode_ms;
       pj["triangulate_ms"] = report.projectors[s].triangulate_ms;
+      pj["decoded"] = report.projectors[s].decode.valid;
+      pj["saturated"] = report.projectors[s].decode.saturated;
+      for (const auto& share : report.projectors[s].exposures)
+        pj["exposures"].push_back({{"exposure_us", share.exposure_us},
+                                   {"decoded", share.decoded},
+                                   {"chosen", share.chosen},
+                                   {"clipped", share.clipped}});
       j[s == 0 ? "left" : "right"] = pj;
     }
     const auto fused =
@@ -530,6 +565,7 @@ int main(int argc, char** argv) try {
   bool mesh = false, noise = true, registration = true;
   int decode_smoothing = -1, quadratic_radius = -1;  // -1: the decoder's defaults
   Pacing pacing;
+  Exposing exposing;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     auto value = [&]() -> std::string {
@@ -563,6 +599,20 @@ int main(int argc, char** argv) try {
         pacing.frame_period_ms = std::stod(value());
         if (!(pacing.frame_period_ms >= 0 && pacing.frame_period_ms <= 10000))
           throw std::invalid_argument("--frame-period-ms must be in [0, 10000]");
+      } else if (arg == "--exposure-bracket") {
+        exposing.bracket.clear();
+        std::stringstream list(value());
+        for (std::string f; std::getline(list, f, ',');) {
+          exposing.bracket.push_back(std::stod(f));
+          if (!(exposing.bracket.back() > 0 && exposing.bracket.back() <= 100))
+            throw std::invalid_argument("--exposure-bracket: each fraction of the reference must be in (0, 100]");
+        }
+        if (exposing.bracket.empty() || exposing.bracket.size() > 8)
+          throw std::invalid_argument("--exposure-bracket: 1 to 8 fractions of the reference exposure");
+      } else if (arg == "--material") {
+        auto material = slrig::parse_material(value());
+        if (!material) throw std::invalid_argument("--material: " + material.error().message);
+        exposing.material = *material;
       } else if (arg == "--prerender") {
         pacing.prerender = true;
       } else if (arg == "--turntable-deg-per-s") {
@@ -574,7 +624,8 @@ int main(int argc, char** argv) try {
                      "usage: bench_accuracy [--size full|small] [--scenes a,b] [--views N] [--mesh] [--no-noise] "
                      "[--no-registration] "
                      "[--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE] [--outliers CSV] "
-                     "[--frame-period-ms P] [--turntable-deg-per-s S] [--prerender]\n");
+                     "[--frame-period-ms P] [--turntable-deg-per-s S] [--prerender] [--exposure-bracket F,F,...] "
+                     "[--material NAME]\n");
         return 2;
       }
     } catch (const std::exception& e) {
@@ -602,7 +653,7 @@ int main(int argc, char** argv) try {
   for (const auto& name : scenes) {
     try {
       Json scene = run_scene(name, size, max_views, mesh, noise, decode_smoothing, quadratic_radius, registration,
-                             outliers, pacing);
+                             outliers, pacing, exposing);
       std::printf("%s\n", scene.dump(1).c_str());
       std::fflush(stdout);
       report.push_back(std::move(scene));

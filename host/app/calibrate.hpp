@@ -30,8 +30,8 @@ struct CalibrateCommand {
   std::string resume_dir;            // --resume DIR: continue the capture in DIR (and keep writing there)
   slproto::CheckerboardSize target;  // the printed checkerboard
   double platform_radius_mm = 150;
-  std::uint32_t exposure_us = 8333;
-  std::uint32_t pattern_period_us = 10000;
+  std::uint32_t exposure_us = 0;        // 0: the board's [timing] pattern_exposure_us
+  std::uint32_t pattern_period_us = 0;  // 0: the board's pattern_period_us
   std::uint32_t settle_ms = 200;
   core::RigCalibrationResult* result = nullptr;  // programmatic callers: the result and report, too
 };

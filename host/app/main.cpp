@@ -129,8 +129,15 @@ void add_scan_options(CLI::App& command, ScanCommand& scan, std::string& connect
   command.add_option("--config", scan.config_path, "Reconstruction parameters (JSON)")->check(existing(false));
   command.add_option("--angles", scan.angles_deg, "Turntable angles in degrees")->capture_default_str();
   command.add_option("--projectors", scan.projectors, "Projector ids (0 left, 1 right)")->capture_default_str();
-  command.add_option("--exposure-us", scan.exposure_us, "Exposure per pattern")->capture_default_str();
-  command.add_option("--period-us", scan.pattern_period_us, "Pattern period")->capture_default_str();
+  command.add_option("--exposure-us", scan.exposure_us,
+                     "Exposure per pattern (default: the board's, from its board file)");
+  command
+      .add_option("--exposure-bracket", scan.exposure_bracket_us,
+                  "HDR: capture every view at each of these exposures (us, comma-separated) and merge them per pixel; "
+                  "--exposure-us is then the reference intensities are scaled to")
+      ->delimiter(',')
+      ->check(CLI::Range(1u, 1'000'000u));
+  command.add_option("--period-us", scan.pattern_period_us, "Pattern period (default: the board's)");
   command.add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
   command
       .add_option("--stall-timeout-s", scan.stall_timeout_s,
@@ -455,10 +462,10 @@ static int run_command_line(int argc, char** argv) {
       ->capture_default_str();
   calibrate_cmd->add_option("--platform-radius-mm", calibrate.platform_radius_mm, "Turntable platform radius")
       ->capture_default_str();
-  calibrate_cmd->add_option("--exposure-us", calibrate.exposure_us, "With --connect: exposure per pattern")
-      ->capture_default_str();
-  calibrate_cmd->add_option("--period-us", calibrate.pattern_period_us, "With --connect: pattern period")
-      ->capture_default_str();
+  calibrate_cmd->add_option("--exposure-us", calibrate.exposure_us,
+                            "With --connect: exposure per pattern (default: the board's, from its board file)");
+  calibrate_cmd->add_option("--period-us", calibrate.pattern_period_us,
+                            "With --connect: pattern period (default: the board's)");
   calibrate_cmd->add_option("--settle-ms", calibrate.settle_ms, "With --connect: turntable settle time")
       ->capture_default_str();
 
@@ -533,6 +540,11 @@ static int run_command_line(int argc, char** argv) {
   demo_cmd->add_option("--config", demo.config_path, "Reconstruction parameters (JSON)")->check(existing(false));
   demo_cmd->add_option("--slscand", demo.slscand_path, "slscand executable")->check(existing(false));
   demo_cmd->add_option("--board", demo.board_path, "Sim board file to start from")->check(existing(false));
+  demo_cmd
+      ->add_option("--exposure-bracket", demo.exposure_bracket_us,
+                   "HDR: exposures (us, comma-separated; the sim camera's 2000 us is the scene's reference)")
+      ->delimiter(',')
+      ->check(CLI::Range(1u, 1'000'000u));
   demo_cmd->add_flag("--overwrite", demo.overwrite,
                      "Replace the capture of an earlier demo in --out (without it, such a folder is refused)");
 

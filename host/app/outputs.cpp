@@ -241,6 +241,13 @@ json scan_result_to_json(const core::ScanResult& result) {
                             {"triangulate", counts_json(p.triangulate)},
                             {"decode_ms", p.decode_ms},
                             {"triangulate_ms", p.triangulate_ms}});
+      if (!p.exposures.empty()) {
+        json exposures = json::array();
+        for (const core::ExposureShare& e : p.exposures)
+          exposures.push_back(
+              {{"exposure_us", e.exposure_us}, {"decoded", e.decoded}, {"chosen", e.chosen}, {"clipped", e.clipped}});
+        projectors.back()["exposures"] = std::move(exposures);
+      }
     }
     views.push_back({{"view_index", view.view_index},
                      {"commanded_angle_deg", view.commanded_angle_deg},

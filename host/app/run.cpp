@@ -463,6 +463,7 @@ int run_scan(const ScanCommand& command, const Console& console) {
   request.angles_deg = command.angles_deg;
   request.projectors = command.projectors;
   request.exposure_us = command.exposure_us;
+  request.exposure_bracket_us = command.exposure_bracket_us;
   request.pattern_period_us = command.pattern_period_us;
   request.settle_ms = command.settle_ms;
   request.stall_timeout = std::chrono::seconds(command.stall_timeout_s);

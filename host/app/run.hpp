@@ -115,8 +115,9 @@ struct ScanCommand {
   std::string config_path;
   std::vector<double> angles_deg{0, 60, 120, 180, 240, 300};
   std::vector<std::uint32_t> projectors{0, 1};
-  std::uint32_t exposure_us = 8333;
-  std::uint32_t pattern_period_us = 10000;
+  std::uint32_t exposure_us = 0;                   // 0: the board's [timing] pattern_exposure_us
+  std::vector<std::uint32_t> exposure_bracket_us;  // HDR (docs/hdr.md); empty: exposure_us alone
+  std::uint32_t pattern_period_us = 0;             // 0: the board's pattern_period_us
   std::uint32_t settle_ms = 200;
   std::uint32_t stall_timeout_s = 60;  // no frame for this long: the scan fails
   std::string token_file;              // shared secret for boards that listen on a network
@@ -186,6 +187,9 @@ struct DemoCommand {
   std::string slscand_path;  // default: next to slscan in the build tree
   std::string board_path;    // default: boards/sim.toml of the source tree
   bool overwrite = false;    // replace the capture of an earlier demo in output_dir
+  // HDR: exposures (us) of the sim board's camera, whose 2000 us stands for the scene's
+  // reference exposure; empty: 2000 alone.
+  std::vector<std::uint32_t> exposure_bracket_us;
 };
 int run_demo(const DemoCommand& command, const Console& console);
 

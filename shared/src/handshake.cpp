@@ -111,6 +111,8 @@ Result<pb::Hello> server_handshake(Connection& connection, const ServerIdentity&
   reply.set_board_name(identity.board_name);
   *reply.mutable_camera() = identity.camera;
   reply.set_projector_count(identity.projector_count);
+  reply.set_pattern_exposure_us(identity.pattern_exposure_us);
+  reply.set_pattern_period_us(identity.pattern_period_us);
   reply.set_min_protocol_version(identity.versions.min);
 
   std::optional<Error> rejection;

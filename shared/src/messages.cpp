@@ -40,6 +40,9 @@ bool is_known_message_type(std::uint8_t value) noexcept { return value >= 1 && v
 
 MessageType type_of(const Body& body) noexcept { return static_cast<MessageType>(body.index() + 1); }
 
+// std::visit throws only on a valueless variant, which a Body never is here: slproto builds each
+// in place and a failed copy (bad_alloc) propagates before the Body is used.
+// NOLINTNEXTLINE(bugprone-exception-escape)
 const google::protobuf::MessageLite& as_message_lite(const Body& body) noexcept {
   return std::visit([](const auto& message) -> const google::protobuf::MessageLite& { return message; }, body);
 }
@@ -185,11 +188,29 @@ Status check_scan_request(const pb::ScanRequest& request, std::uint32_t projecto
   if (request.pattern_period_us() < request.exposure_us())
     return bad("pattern_period_us " + std::to_string(request.pattern_period_us()) + " is shorter than exposure_us " +
                std::to_string(request.exposure_us()));
+  if (request.exposure_bracket_us_size() > kMaxExposureBracket)
+    return bad("exposure_bracket_us has " + std::to_string(request.exposure_bracket_us_size()) +
+               " exposures (at most " + std::to_string(kMaxExposureBracket) + ")");
+  for (int i = 0; i < request.exposure_bracket_us_size(); ++i) {
+    const std::uint32_t exposure = request.exposure_bracket_us(i);
+    const std::string name = "exposure_bracket_us[" + std::to_string(i) + "] = " + std::to_string(exposure);
+    if (exposure == 0) return bad(name + " is 0");
+    if (exposure > request.pattern_period_us())
+      return bad(name + " is longer than pattern_period_us " + std::to_string(request.pattern_period_us()));
+    for (int j = 0; j < i; ++j)
+      if (request.exposure_bracket_us(j) == exposure)
+        return bad(name + " repeats exposure_bracket_us[" + std::to_string(j) + "]");
+  }
   if (bytes_per_pixel(request.pixel_format()) == 0)
     return bad("pixel_format " + std::to_string(request.pixel_format()) + " is not mono8, mono10 or mono12");
   if (request.has_calibration_target())
     if (auto target = from_proto(request.calibration_target()); !target) return target.error();
   return Ok{};
+}
+
+std::vector<std::uint32_t> exposures_of(const pb::ScanRequest& request) {
+  if (request.exposure_bracket_us_size() == 0) return {request.exposure_us()};
+  return {request.exposure_bracket_us().begin(), request.exposure_bracket_us().end()};
 }
 
 pb::Error to_proto(const Error& error, std::uint64_t scan_id, bool fatal) {

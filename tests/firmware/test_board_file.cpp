@@ -154,6 +154,17 @@ TEST(BoardFile, ContradictionsAreRefused) {
   EXPECT_NE(error_of(sim_with("backend = \"sim\"", "backend = \"gpiod\"")).find("go together"), std::string::npos);
   // Below the DLP's minimum exposure.
   EXPECT_NE(error_of(sim_with("pattern_exposure_us", "pattern_exposure_us = 100")).find("235 us"), std::string::npos);
+  // An exposure change that never applies (or applies "before" it is made).
+  EXPECT_NE(error_of(sim_with("readout_us = 1500", "readout_us = 1500\nexposure_change_frames = 40"))
+                .find("camera.exposure_change_frames must be within 0 to 16 frames (40)"),
+            std::string::npos);
+  EXPECT_NE(error_of(sim_with("readout_us = 1500", "readout_us = 1500\nexposure_change_frames = -1"))
+                .find("camera.exposure_change_frames"),
+            std::string::npos);
+  auto board = slscand::hal::parse_board(sim_with("readout_us = 1500", "readout_us = 1500\nexposure_change_frames = 2"),
+                                         "sim.toml");
+  ASSERT_TRUE(board.ok()) << board.error().message;
+  EXPECT_EQ(board->exposure_change_frames, 2);
 }
 
 TEST(BoardFile, WrongTypesAndUnknownKeysAreNamed) {

@@ -64,6 +64,9 @@ class DaemonFixture : public ::testing::Test {
     EXPECT_TRUE(reply.ok()) << reply.error().message;
     EXPECT_EQ(reply->board_name(), "sim");
     EXPECT_TRUE(reply->capabilities() & pb::CAPABILITY_SIMULATED);
+    // boards/sim.toml's [timing]: what slscan asks for when its user does not say.
+    EXPECT_EQ(reply->pattern_exposure_us(), 2000u);
+    EXPECT_EQ(reply->pattern_period_us(), 5000u);
     return std::move(*connection);
   }
 
@@ -237,6 +240,106 @@ TEST_F(DaemonFixture, FullSixViewScanArrivesInOrderWithTimingLog) {
   EXPECT_GE(report.trigger_to_exposure.p50_us, 5.0);  // the sim's camera latency (boards/sim.toml)
   EXPECT_LE(report.period_jitter.p50_us, report.period_jitter.p99_us);
   expect_dark_and_idle();
+}
+
+// HDR: a bracket captures every view at each exposure, projector passes inside each exposure,
+// the frames saying which; the camera really exposed each for its time (the white frame's
+// signal scales with it), and the board waits its exposure_change_frames after each change.
+TEST_F(DaemonFixture, AnExposureBracketCapturesEveryViewAtEachExposureInOrder) {
+  start(20000, {}, [](hal::BoardConfig& b) { b.exposure_change_frames = 3; });
+  slproto::Connection c = connect();
+  pb::ScanRequest bracketed = request(50, 2);
+  for (const std::uint32_t us : {2000u, 500u}) bracketed.add_exposure_bracket_us(us);
+  daemon_->devices().sim_rig->clear_records();
+  ASSERT_TRUE(c.send(bracketed).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  ASSERT_EQ(r.done->final_state(), pb::SCAN_STATE_DONE) << r.done->text();
+  ASSERT_EQ(r.frames.size(), 2u * 2u * 2u * 19u);
+  EXPECT_EQ(r.done->frames_sent(), r.frames.size());
+  std::size_t k = 0;
+  const std::uint32_t exposures[2] = {2000, 500};
+  for (std::uint32_t view = 0; view < 2; ++view) {
+    for (std::uint32_t e = 0; e < 2; ++e) {
+      for (std::uint32_t side = 0; side < 2; ++side) {
+        for (std::uint32_t p = 0; p < 19; ++p, ++k) {
+          const pb::FrameHeader& f = r.frames[k];
+          ASSERT_EQ(f.sequence(), k);
+          EXPECT_EQ(f.view_index(), view);
+          EXPECT_EQ(f.exposure_index(), e) << k;
+          EXPECT_EQ(f.exposure_us(), exposures[e]) << k;
+          EXPECT_EQ(f.projector_id(), side) << k;
+          EXPECT_EQ(f.pattern_index(), p) << k;
+          EXPECT_EQ(f.exposure_end_ns() - f.exposure_start_ns(), std::uint64_t{exposures[e]} * 1000u) << k;
+        }
+        // White minus black at a quarter of the exposure: a quarter of the signal (ambient
+        // scales too, so the difference does), within the frames' rounding.
+        const std::size_t first = k - 19;
+        if (e == 1) {
+          const std::size_t long_first = first - 2 * 19;
+          const double long_signal = r.means[long_first] - r.means[long_first + 1];
+          const double short_signal = r.means[first] - r.means[first + 1];
+          EXPECT_GT(long_signal, 5);
+          EXPECT_NEAR(short_signal / long_signal, 0.25, 0.03) << "view " << view << " side " << side;
+        }
+      }
+    }
+    // The change to the second exposure waited 3 periods (5 ms each) before its first trigger.
+    const std::size_t last_long = view * 76 + 37, first_short = view * 76 + 38;
+    EXPECT_GE(r.frames[first_short].trigger_ns() - r.frames[last_long].trigger_ns(), 3u * 5'000'000u);
+    EXPECT_TRUE(has_event(r.frames[first_short], pb::TIMING_EVENT_EXPOSURE_CHANGED));
+  }
+  // The virtual camera saw what the frames say.
+  const auto seen = daemon_->devices().sim_rig->exposures();
+  ASSERT_EQ(seen.size(), r.frames.size());
+  for (std::size_t i = 0; i < seen.size(); ++i)
+    EXPECT_EQ(seen[i].exposure_ns, static_cast<Nanos>(r.frames[i].exposure_us()) * 1000) << i;
+  expect_dark_and_idle();
+}
+
+TEST_F(DaemonFixture, ABracketTheBoardCannotRunIsRefusedNamingTheValueAndTheLimit) {
+  start();
+  slproto::Connection c = connect();
+  auto refused = [&](const std::vector<std::uint32_t>& bracket) {
+    pb::ScanRequest bad = request(60, 1);
+    for (const std::uint32_t us : bracket) bad.add_exposure_bracket_us(us);
+    EXPECT_TRUE(c.send(bad).ok());
+    const Received r = receive_scan(c);
+    EXPECT_TRUE(r.done.has_value() && r.done->final_state() == pb::SCAN_STATE_FAILED);
+    EXPECT_TRUE(r.frames.empty());
+    return r.errors.empty() ? std::string() : r.errors[0].text();
+  };
+  EXPECT_THAT(refused({2000, 100}), testing::HasSubstr("exposure_bracket_us[1] = 100 is below the projector's 235 us"));
+  EXPECT_THAT(refused({2000, 6000}),
+              testing::HasSubstr("exposure_bracket_us[1] = 6000 is longer than pattern_period_us 5000"));
+  EXPECT_THAT(refused({2000, 500, 2000}), testing::HasSubstr("exposure_bracket_us[2] = 2000 repeats"));
+  EXPECT_THAT(refused({2000, 1000, 900, 800, 700, 600, 500, 400, 300}), testing::HasSubstr("9 exposures (at most 8)"));
+  // Within the period but too long for the board's read-out after it.
+  EXPECT_THAT(refused({2000, 4000}), testing::HasSubstr("shorter than trigger delay + exposure + read-out"));
+  EXPECT_EQ(daemon_->stats().scans_refused, 5u);
+  expect_next_scan_runs(c, 61);
+}
+
+TEST_F(DaemonFixture, ACameraThatIgnoresTheExposureControlFailsTheBracketedScan) {
+  start();
+  slproto::Connection c = connect();
+  hal::sim::SimFaults faults;
+  faults.camera_ignores_exposure = true;
+  daemon_->devices().sim_rig->set_faults(faults);
+  pb::ScanRequest bracketed = request(70, 1);
+  for (const std::uint32_t us : {2000u, 500u}) bracketed.add_exposure_bracket_us(us);
+  ASSERT_TRUE(c.send(bracketed).ok());
+  const Received r = receive_scan(c);
+  ASSERT_TRUE(r.done.has_value());
+  EXPECT_EQ(r.done->final_state(), pb::SCAN_STATE_FAILED);
+  ASSERT_EQ(r.errors.size(), 1u);
+  EXPECT_THAT(r.errors[0].text(),
+              testing::HasSubstr("was exposed for 2000 us, not the 500 us asked (bracket member 1"));
+  EXPECT_THAT(r.errors[0].text(), testing::HasSubstr("ignores or clamps its exposure control"));
+  EXPECT_EQ(r.frames.size(), 38u);  // the first exposure's passes were right and delivered
+  expect_dark_and_idle();
+  daemon_->devices().sim_rig->set_faults({});
+  expect_next_scan_runs(c, 71);
 }
 
 TEST_F(DaemonFixture, AbortEndsTheScanAndTheNextOneRuns) {
@@ -893,7 +996,7 @@ TEST_F(DaemonFixture, TheOldestSilentHelloMakesRoomForANewcomer) {
 TEST_F(DaemonFixture, ScanPlanLimitsAreEnforced) {
   start();
   slproto::Connection c = connect();
-  auto refused = [&](pb::ScanRequest r, const std::string& expected) {
+  auto refused = [&](const pb::ScanRequest& r, const std::string& expected) {
     ASSERT_TRUE(c.send(r).ok());
     const Received got = receive_scan(c);
     ASSERT_TRUE(got.done.has_value());

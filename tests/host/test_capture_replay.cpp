@@ -26,7 +26,7 @@ namespace fs = std::filesystem;
 
 constexpr std::uint32_t kSide = 4;  // 4 x 4 mono8 frames: the checks are about the records, not pixels
 
-slproto::pb::ScanRequest request(int views, std::vector<std::uint32_t> projectors = {0, 1}) {
+slproto::pb::ScanRequest request(int views, const std::vector<std::uint32_t>& projectors = {0, 1}) {
   slproto::pb::ScanRequest r;
   r.set_scan_id(7);
   for (int i = 0; i < views; ++i) r.add_turntable_angles_deg(views > 1 ? 360.0 * i / views : 0.0);
@@ -38,12 +38,14 @@ slproto::pb::ScanRequest request(int views, std::vector<std::uint32_t> projector
   return r;
 }
 
-std::vector<std::byte> frame(std::uint32_t view, std::uint32_t projector, std::uint32_t pattern) {
+std::vector<std::byte> frame(std::uint32_t view, std::uint32_t projector, std::uint32_t pattern,
+                             std::uint32_t exposure_index = 0) {
   slproto::pb::FrameHeader header;
   header.set_scan_id(7);
   header.set_view_index(view);
   header.set_projector_id(projector);
   header.set_pattern_index(pattern);
+  header.set_exposure_index(exposure_index);
   slproto::set_frame_geometry(header, kSide, kSide);
   const std::vector<std::byte> pixels(kSide * kSide, std::byte{100});
   header.set_payload_crc32c(slproto::crc32c(pixels));
@@ -104,6 +106,41 @@ TEST_F(CaptureReplay, AConsistentCaptureReplays) {
   std::size_t frames = 0;
   EXPECT_EQ(replay_error(&frames), "");
   EXPECT_EQ(frames, 3u);
+}
+
+// HDR (docs/hdr.md): a bracket's frames fill one slot per exposure; an exposure index the request
+// has no place for, or a bracket the protocol refuses, is named at its record.
+TEST_F(CaptureReplay, ABracketedCaptureTakesOneFramePerExposureAndRefusesOthers) {
+  auto bracketed = request(1);
+  for (const std::uint32_t us : {8333u, 1000u}) bracketed.add_exposure_bracket_us(us);
+  std::size_t frames = 0;
+  write({record_of(bracketed), frame(0, 0, 0, 0), frame(0, 0, 0, 1), frame(0, 1, 3, 1)});
+  EXPECT_EQ(replay_error(&frames), "");
+  EXPECT_EQ(frames, 3u);
+
+  auto offsets = write({record_of(bracketed), frame(0, 0, 0, 1), frame(0, 0, 0, 2)});
+  EXPECT_NE(replay_error().find("record at offset " + std::to_string(offsets[2]) +
+                                ": frame (view 0, projector 0, pattern 0) has exposure index 2 but the scan request "
+                                "has a bracket of 2 exposures"),
+            std::string::npos)
+      << replay_error();
+  write({record_of(request(1)), frame(0, 0, 0, 1)});
+  EXPECT_NE(replay_error().find("has exposure index 1 but the scan request has no exposure bracket"), std::string::npos)
+      << replay_error();
+  offsets = write({record_of(bracketed), frame(0, 0, 0, 1), frame(0, 0, 0, 1)});
+  EXPECT_NE(replay_error().find("repeats the frame at offset " + std::to_string(offsets[1])), std::string::npos)
+      << replay_error();
+
+  auto too_long = request(1);
+  for (const std::uint32_t us : {8333u, 20000u}) too_long.add_exposure_bracket_us(us);
+  write({record_of(too_long)});
+  EXPECT_NE(replay_error().find("exposure_bracket_us[1] = 20000 is longer than pattern_period_us 10000"),
+            std::string::npos)
+      << replay_error();
+  auto zero = request(1);
+  for (const std::uint32_t us : {0u, 1000u}) zero.add_exposure_bracket_us(us);
+  write({record_of(zero)});
+  EXPECT_NE(replay_error().find("exposure_bracket_us[0] = 0 is 0"), std::string::npos) << replay_error();
 }
 
 // Issue 17 case 3: a 180 KB capture whose request named 20000 views x 20000 projectors made

@@ -54,6 +54,7 @@ struct Finished {
 Finished run(const std::vector<std::string>& args, const fs::path& log, std::chrono::seconds guard) {
   std::vector<std::string> copy = args;
   std::vector<char*> argv;
+  argv.reserve(copy.size() + 1);
   for (auto& a : copy) argv.push_back(a.data());
   argv.push_back(nullptr);
   const pid_t pid = ::fork();
@@ -322,6 +323,21 @@ TEST_F(HostileScanner, FramesOfAViewOrPatternTheRequestDoesNotHave) {
     (void)c.send_frame(frame_header(request, 0, 1, 4000000000u, 1), frame_pixels());
   });
   expect_refused(scan(pattern, "pattern"), "pattern", "is beyond the scan request's pattern plan", 1);
+}
+
+// HDR (docs/hdr.md): a board that does not offer CAPABILITY_EXPOSURE_BRACKET would ignore the
+// bracket and send one exposure; slscan refuses before it asks for the scan, naming the fix.
+TEST_F(HostileScanner, ABracketForABoardThatCannotSequenceItIsRefusedBeforeTheScan) {
+  FakeBoard older([](slproto::Connection&, int, const pb::ScanRequest&) {});
+  const Finished finished =
+      run({SLSCAN_BIN, "scan", "--connect", older.address(), "--calib", (dir_ / "calib.json").string(), "--out",
+           (dir_ / "bracket").string(), "--angles", "0", "--exposure-bracket", "2000,500"},
+          dir_ / "bracket.log", 60s);
+  EXPECT_EQ(finished.exit_code, 3) << finished.err;
+  EXPECT_NE(finished.err.find("cannot sequence an exposure bracket (no CAPABILITY_EXPOSURE_BRACKET)"),
+            std::string::npos)
+      << finished.err;
+  EXPECT_EQ(frames_kept("bracket"), -1) << "no scan was asked for, so no capture";
 }
 
 TEST_F(HostileScanner, HugeDeclaredLengths) {

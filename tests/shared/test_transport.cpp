@@ -61,7 +61,7 @@ TEST(Transport, HandshakeAndEveryMessageTypeBothWays) {
   ConnectionOptions options;
   options.deliver_heartbeats = true;  // so the sample heartbeat arrives like any other record
   Pair pair = connected_pair(options);
-  ServerIdentity identity{"bench-rig", "slscand 0.1.0", pb::CAPABILITY_TURNTABLE, {}, 2, "s3cret", {}};
+  ServerIdentity identity{"bench-rig", "slscand 0.1.0", pb::CAPABILITY_TURNTABLE, {}, 2, "s3cret", {}, 8333, 40000};
   identity.camera.set_width(2464);
   auto server_side = std::async(std::launch::async, [&] { return server_handshake(pair.board, identity); });
   Result<pb::HelloReply> reply =
@@ -72,6 +72,8 @@ TEST(Transport, HandshakeAndEveryMessageTypeBothWays) {
   EXPECT_EQ(reply->board_name(), "bench-rig");
   EXPECT_EQ(reply->camera().width(), 2464u);
   EXPECT_EQ(reply->projector_count(), 2u);
+  EXPECT_EQ(reply->pattern_exposure_us(), 8333u);  // the board file's timing, for the host's defaults
+  EXPECT_EQ(reply->pattern_period_us(), 40000u);
   Result<pb::Hello> hello = server_side.get();
   ASSERT_TRUE(hello.ok()) << hello.error().message;
   EXPECT_EQ(hello->client_name(), "test-host");
@@ -102,7 +104,7 @@ TEST(Transport, HandshakeAndEveryMessageTypeBothWays) {
 TEST(Transport, HandshakeRejectsWrongTokenAndVersion) {
   {
     Pair pair = connected_pair();
-    ServerIdentity identity{"rig", "1", 0, {}, 2, "right", {}};
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "right", {}, 0, 0};
     auto server_side = std::async(std::launch::async, [&] { return server_handshake(pair.board, identity); });
     Result<pb::HelloReply> reply = client_handshake(pair.host, make_hello("h", "1", 0, "wrong"));
     ASSERT_FALSE(reply.ok());
@@ -115,7 +117,7 @@ TEST(Transport, HandshakeRejectsWrongTokenAndVersion) {
   }
   {
     Pair pair = connected_pair();
-    ServerIdentity identity{"rig", "1", 0, {}, 2, "", {}};
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "", {}, 0, 0};
     auto server_side = std::async(std::launch::async, [&] { return server_handshake(pair.board, identity); });
     pb::Hello future = make_hello("h", "9");
     future.set_protocol_version(7);
@@ -142,7 +144,7 @@ TEST(Transport, HandshakeRejectsWrongTokenAndVersion) {
 TEST(Transport, HandshakeAdmissionRefusesBeforeAccepting) {
   {
     Pair pair = connected_pair();
-    ServerIdentity identity{"rig", "1", 0, {}, 2, "", {}};
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "", {}, 0, 0};
     int asked = 0;
     auto server_side = std::async(std::launch::async, [&] {
       return server_handshake(pair.board, identity, default_handshake_timeout, [&]() -> Status {
@@ -159,7 +161,7 @@ TEST(Transport, HandshakeAdmissionRefusesBeforeAccepting) {
   }
   {
     Pair pair = connected_pair();
-    ServerIdentity identity{"rig", "1", 0, {}, 2, "right", {}};
+    ServerIdentity identity{"rig", "1", 0, {}, 2, "right", {}, 0, 0};
     int asked = 0;
     auto server_side = std::async(std::launch::async, [&] {
       return server_handshake(pair.board, identity, default_handshake_timeout, [&]() -> Status {

@@ -1,6 +1,7 @@
 #include "slscand/app/daemon.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <optional>
 #include <thread>
@@ -247,6 +248,7 @@ void Daemon::serve_connection(slproto::Connection& connection, const std::functi
 
 std::uint64_t Daemon::capabilities() const {
   return pb::CAPABILITY_TURNTABLE | pb::CAPABILITY_TWO_PROJECTORS | pb::CAPABILITY_TIMING_LOG |
+         pb::CAPABILITY_EXPOSURE_BRACKET |
          (board_.trigger_source == hal::CameraTriggerSource::projector ? pb::CAPABILITY_HARDWARE_TRIGGER : 0) |
          (devices_.simulated() ? pb::CAPABILITY_SIMULATED : 0) |
          (devices_.places_calibration_target() ? pb::CAPABILITY_CALIBRATION_TARGET : 0);
@@ -262,6 +264,8 @@ std::uint32_t Daemon::handshake(slproto::Connection& connection) {
   identity.camera.add_pixel_formats(to_proto(devices_.camera_format.pixel_format));
   identity.camera.set_model(devices_.camera->describe());
   identity.projector_count = 2;
+  identity.pattern_exposure_us = static_cast<std::uint32_t>(std::lround(board_.pattern_exposure_us));
+  identity.pattern_period_us = static_cast<std::uint32_t>(std::lround(board_.pattern_period_us));
   identity.auth_token = options_.auth_token;
   // The connection limit is checked as the hello is answered, not only at accept: a host
   // accepted just before may not have been counted yet when this one was accepted.

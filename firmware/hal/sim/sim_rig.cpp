@@ -51,6 +51,7 @@ struct CameraJob {
   int side = -1;
   int pattern_index = -1;
   std::uint64_t sequence = 0;
+  Nanos camera_exposure_ns = 0, projector_exposure_ns = 0;  // as set when the camera was triggered
 };
 
 }  // namespace
@@ -262,8 +263,11 @@ void SimRig::Core::on_camera_trigger(Nanos now) {
     job.start_ns = start;
     job.end_ns = start + camera_exposure_ns;
     job.sequence = camera_sequence++;
+    job.camera_exposure_ns = camera_exposure_ns;
+    job.projector_exposure_ns = projector_exposure_ns;
     ExposureRecord record;
     record.start_ns = start;
+    record.exposure_ns = camera_exposure_ns;
     for (int side = 0; side < 2; ++side) {
       if (dlp[side].lit_pattern >= 0) {
         record.lit_count++;
@@ -321,6 +325,26 @@ void SimRig::Core::run_scheduler() {
     node.mapped()(due);
   }
 }
+
+namespace {
+
+slrig::Exposure rendered_exposure(const CameraJob& job, double board_exposure_us, double reference_exposure_us) {
+  // The sim board's pattern_exposure_us stands for the scene's reference exposure (the board
+  // keeps it short so tests run fast): a frame exposed for k times the board's exposure is
+  // rendered at k times the reference. At the board's own exposure: the reference itself.
+  const auto board_ns = static_cast<Nanos>(board_exposure_us * kMicro);
+  slrig::Exposure exposure;
+  if (job.camera_exposure_ns == board_ns && job.projector_exposure_ns >= job.camera_exposure_ns) return exposure;
+  const double scale = reference_exposure_us / static_cast<double>(board_ns);
+  exposure.exposure_us = scale * static_cast<double>(job.camera_exposure_ns);
+  // Projector and camera start together (its TRIG_OUT_1 triggers the camera): a shorter DLP
+  // exposure lights only part of the camera's.
+  if (job.projector_exposure_ns < job.camera_exposure_ns)
+    exposure.projector_us = scale * static_cast<double>(job.projector_exposure_ns);
+  return exposure;
+}
+
+}  // namespace
 
 void SimRig::Core::run_camera() {
   std::optional<slrig::ViewRenderer> renderer;
@@ -393,12 +417,14 @@ void SimRig::Core::run_camera() {
       try {
         frame.format = frame_format;
         frame.pixels.resize(renderer->frame_bytes());
+        const slrig::Exposure exposure =
+            rendered_exposure(job, board.pattern_exposure_us, rendered_scene->sensor.exposure_us);
         if (job.side < 0) {
-          renderer->render_ambient(frame.pixels);
+          renderer->render_ambient(frame.pixels, exposure);
         } else if (frame_plan) {
           renderer->render(static_cast<slproto::ProjectorSide>(job.side), *frame_plan,
-                           static_cast<std::size_t>(job.pattern_index), frame.pixels);
-        } else {
+                           static_cast<std::size_t>(job.pattern_index), frame.pixels, exposure);
+        } else {  // no plan loaded yet: the scene's own, at the board's exposure
           renderer->render(static_cast<slproto::ProjectorSide>(job.side), static_cast<std::size_t>(job.pattern_index),
                            frame.pixels);
         }
@@ -493,6 +519,7 @@ class SimCamera final : public Camera {
   Status set_exposure_us(double exposure_us) override {
     if (!(exposure_us > 0)) return make_error(Errc::invalid_argument, "sim camera: exposure must be positive");
     std::lock_guard lock(core_->mutex);
+    if (core_->faults.camera_ignores_exposure) return slproto::Ok{};
     core_->camera_exposure_ns = static_cast<Nanos>(exposure_us * kMicro);
     return slproto::Ok{};
   }

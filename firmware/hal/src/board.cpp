@@ -259,6 +259,9 @@ slproto::Status BoardConfig::check() const {
   if (!(pattern_exposure_us > 0)) return fail("timing.pattern_exposure_us must be positive");
   if (pattern_exposure_us < 235) return fail("timing.pattern_exposure_us below the DLP4500's 235 us minimum");
   if (!(readout_us >= 0)) return fail("camera.readout_us must not be negative");
+  if (exposure_change_frames < 0 || exposure_change_frames > 16)
+    return fail("camera.exposure_change_frames must be within 0 to 16 frames (" +
+                std::to_string(exposure_change_frames) + ")");
   if (!(projector_latency_us >= 0 && projector_latency_us <= 1e6))
     return fail("timing.projector_latency_us must be within 0 to 1e6 us (one second)");
   if (!(pattern_period_us > pattern_exposure_us + readout_us)) {
@@ -303,9 +306,9 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
   r.only_keys("projector", {"left", "right"});
   r.only_keys("projector.left", {"trig_in_1", "trig_in_2", "trig_out_1"});
   r.only_keys("projector.right", {"trig_in_1", "trig_in_2", "trig_out_1"});
-  r.only_keys("camera",
-              {"backend", "device", "width", "height", "pixel_format", "gain", "trigger", "trigger_line", "readout_us",
-               "trigger_input", "trigger_activation", "offset_x", "offset_y", "packet_size", "buffers"});
+  r.only_keys("camera", {"backend", "device", "width", "height", "pixel_format", "gain", "trigger", "trigger_line",
+                         "readout_us", "exposure_change_frames", "trigger_input", "trigger_activation", "offset_x",
+                         "offset_y", "packet_size", "buffers"});
   r.only_keys("timing", {"pattern_exposure_us", "pattern_period_us", "projector_latency_us", "settle_ms",
                          "ack_timeout_ms", "frame_timeout_ms", "move_timeout_s"});
   r.only_keys("turntable", {"backend", "serial", "port", "baud", "feed_deg_per_min", "angle_tolerance_deg"});
@@ -363,6 +366,7 @@ slproto::Result<BoardConfig> parse_board(const std::string& toml_text, const std
     b.camera_trigger_line = line;
   }
   r.optional("camera.readout_us", b.readout_us);
+  r.optional("camera.exposure_change_frames", b.exposure_change_frames);
   const bool genicam = b.camera_backend == "aravis";
   for (const char* key : {"camera.trigger_input", "camera.trigger_activation", "camera.offset_x", "camera.offset_y",
                           "camera.packet_size", "camera.buffers"}) {

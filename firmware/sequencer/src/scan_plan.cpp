@@ -1,5 +1,6 @@
 #include "slscand/sequencer/scan_plan.hpp"
 
+#include <algorithm>
 #include <string>
 
 namespace slscand {
@@ -50,6 +51,8 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
   plan.projectors.assign(request.projectors().begin(), request.projectors().end());
   plan.patterns = std::move(*patterns);
   plan.exposure_ns = static_cast<Nanos>(request.exposure_us()) * kMicro;
+  for (const std::uint32_t exposure_us : slproto::exposures_of(request))
+    plan.exposures_ns.push_back(static_cast<Nanos>(exposure_us) * kMicro);
   plan.period_ns = static_cast<Nanos>(request.pattern_period_us()) * kMicro;
   plan.trigger_delay_ns = static_cast<Nanos>(request.trigger_delay_us()) * kMicro;
   plan.settle_ns = static_cast<Nanos>(request.settle_ms() != 0 ? request.settle_ms() : board.settle_ms * 1000) * kMicro;
@@ -65,13 +68,21 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
     return refuse(Errc::unsupported,
                   "exposure_us " + std::to_string(request.exposure_us()) + " is below the projector's 235 us minimum");
   }
+  for (int i = 0; i < request.exposure_bracket_us_size(); ++i) {
+    const std::uint32_t exposure_us = request.exposure_bracket_us(i);
+    const std::string name = "exposure_bracket_us[" + std::to_string(i) + "] = " + std::to_string(exposure_us);
+    if (exposure_us < 235) return refuse(Errc::unsupported, name + " is below the projector's 235 us minimum");
+    if (exposure_us > kMaxExposureUs)
+      return over(("exposure_bracket_us[" + std::to_string(i) + "]").c_str(), exposure_us, kMaxExposureUs);
+  }
   if (plan.patterns.size() > 32) {
     return refuse(Errc::unsupported, "the plan has " + std::to_string(plan.patterns.size()) +
                                          " patterns; the projectors hold 32 8-bit patterns");
   }
   const double readout_us = board.readout_us;
-  const double needed_us =
-      static_cast<double>(request.trigger_delay_us()) + request.exposure_us() + readout_us + board.projector_latency_us;
+  const std::uint32_t longest_us = std::ranges::max(slproto::exposures_of(request));
+  const double needed_us = static_cast<double>(request.trigger_delay_us()) +
+                           std::max(request.exposure_us(), longest_us) + readout_us + board.projector_latency_us;
   if (request.pattern_period_us() < needed_us) {
     return refuse(Errc::unsupported, "pattern_period_us " + std::to_string(request.pattern_period_us()) +
                                          " is shorter than trigger delay + exposure + read-out (" +
@@ -90,6 +101,14 @@ slproto::Result<ScanPlan> make_scan_plan(const slproto::pb::ScanRequest& request
   }
   plan.pixel_format = camera_format.pixel_format;
   return plan;
+}
+
+std::uint64_t ScanPlan::capture_periods(int exposure_change_frames) const {
+  // Each view waits for the change to every bracket member but the first: the change back to
+  // the first is made before the turntable moves, and the move and settling cover it.
+  const std::uint64_t changes_per_view = exposures_ns.size() - std::min<std::size_t>(exposures_ns.size(), 1);
+  return frames_total() +
+         angles_deg.size() * changes_per_view * static_cast<std::uint64_t>(std::max(0, exposure_change_frames));
 }
 
 }  // namespace slscand

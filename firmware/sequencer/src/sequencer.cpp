@@ -44,6 +44,7 @@ pb::FrameHeader make_frame_header(const SequencedFrame& f, bool with_events) {
   h.set_pattern_kind(static_cast<pb::PatternKind>(f.pattern.kind));
   h.set_pattern_kind_index(f.pattern.index);
   h.set_exposure_us(static_cast<std::uint32_t>(f.exposure_ns / kMicro));
+  h.set_exposure_index(f.exposure_index);
   h.set_trigger_ns(static_cast<std::uint64_t>(f.timing.trigger_ns));
   h.set_exposure_start_ns(static_cast<std::uint64_t>(f.timing.exposure_start_ns));
   h.set_exposure_end_ns(static_cast<std::uint64_t>(f.timing.exposure_end_ns));
@@ -128,7 +129,9 @@ class ScanRun {
   std::optional<Failure> move_to(std::size_t v, View& view);
   // One projector's pass over the plan's patterns at `view`: triggers on absolute deadlines,
   // frames collected while waiting for the next one.
-  std::optional<Failure> pass(const View& view, std::uint32_t projector_id);
+  std::optional<Failure> pass(const View& view, std::uint32_t projector_id, std::uint32_t exposure_index);
+  // Sets the camera's (and the projectors') exposure to bracket member `exposure_index`.
+  std::optional<Failure> set_exposure(std::uint32_t exposure_index);
   // Hands on the awaited frames that arrive by `wait_until` (all of them, each by its own due
   // time, if `all`), oldest first.
   std::optional<Failure> collect(std::deque<SequencedFrame>& awaiting, const View& view, std::uint32_t projector_id,
@@ -172,23 +175,46 @@ std::optional<Failure> ScanRun::views() {
   if (auto s = devices_.place_calibration_target(plan_.calibration_target); !s) {
     return Failure{pb::SCAN_STATE_FAILED, s.error()};
   }
-  if (auto s = devices_.load_patterns(plan_.patterns, plan_.exposure_ns); !s) {
-    return Failure{pb::SCAN_STATE_FAILED, s.error()};
-  }
+  if (auto f = set_exposure(0)) return f;
   hal::Camera& camera = *devices_.camera;
-  if (auto s = camera.set_exposure_us(static_cast<double>(plan_.exposure_ns) / kMicro); !s) {
-    return Failure{pb::SCAN_STATE_FAILED, s.error()};
-  }
   if (auto s = camera.start(); !s) return Failure{pb::SCAN_STATE_FAILED, s.error()};
   link_before_ = camera.link_stats();
 
+  const auto exposures = static_cast<std::uint32_t>(plan_.exposures_ns.size());
   for (std::size_t v = 0; v < plan_.angles_deg.size(); ++v) {
+    // Back to the bracket's first exposure before the table moves: the move and the settling
+    // give the camera far longer than its change latency.
+    if (v > 0 && exposures > 1)
+      if (auto f = set_exposure(0)) return f;
     View view;
     if (auto f = move_to(v, view)) return f;
-    for (const std::uint32_t projector_id : plan_.projectors) {
-      if (auto f = pass(view, projector_id)) return f;
+    for (std::uint32_t e = 0; e < exposures; ++e) {
+      if (e > 0) {
+        if (auto f = set_exposure(e)) return f;
+        const Nanos latency = static_cast<Nanos>(board_.exposure_change_frames) * plan_.period_ns;
+        log(pb::TIMING_EVENT_EXPOSURE_CHANGED, monotonic_now_ns(), e);
+        if (!sleep_until_or_abort(monotonic_now_ns() + latency, abort_)) return fail_if_aborted();
+      }
+      for (const std::uint32_t projector_id : plan_.projectors) {
+        if (auto f = pass(view, projector_id, e)) return f;
+      }
     }
     outcome_.views_completed++;
+  }
+  return std::nullopt;
+}
+
+std::optional<Failure> ScanRun::set_exposure(std::uint32_t exposure_index) {
+  const Nanos exposure_ns = plan_.exposures_ns.at(exposure_index);
+  if (auto s = devices_.load_patterns(plan_.patterns, exposure_ns); !s) {
+    return Failure{pb::SCAN_STATE_FAILED, s.error()};
+  }
+  if (auto s = devices_.camera->set_exposure_us(static_cast<double>(exposure_ns) / kMicro); !s) {
+    auto error = s.error();
+    if (plan_.exposures_ns.size() > 1)
+      error.message = "exposure " + std::to_string(exposure_ns / kMicro) + " us (bracket member " +
+                      std::to_string(exposure_index) + "): " + error.message;
+    return Failure{pb::SCAN_STATE_FAILED, error};
   }
   return std::nullopt;
 }
@@ -217,7 +243,8 @@ std::optional<Failure> ScanRun::move_to(std::size_t v, View& view) {
   return std::nullopt;
 }
 
-std::optional<Failure> ScanRun::pass(const View& view, std::uint32_t projector_id) {
+std::optional<Failure> ScanRun::pass(const View& view, std::uint32_t projector_id, std::uint32_t exposure_index) {
+  const Nanos exposure_ns = plan_.exposures_ns[exposure_index];
   hal::DlpProjector& projector = *devices_.projectors[projector_id];
   if (auto s = projector.start(); !s) return Failure{pb::SCAN_STATE_FAILED, s.error()};
   // Triggers and frames are pipelined: pattern i + 1 is triggered on time while frame i
@@ -241,7 +268,7 @@ std::optional<Failure> ScanRun::pass(const View& view, std::uint32_t projector_i
     // After a late trigger (a late wake-up) never catch up by advancing the projector before
     // its last exposure (known from its TRIG_OUT_1 edge) has ended. Only then: ordinary
     // wake-up latency must not accumulate into the deadlines, so they stay absolute.
-    const Nanos earliest = previous_shown + plan_.exposure_ns + 100 * kMicro;
+    const Nanos earliest = previous_shown + exposure_ns + 100 * kMicro;
     if (i > 0 && deadline < earliest) {
       const Nanos slip = earliest - deadline;
       t0 += slip;
@@ -257,7 +284,8 @@ std::optional<Failure> ScanRun::pass(const View& view, std::uint32_t projector_i
     item.projector_id = projector_id;
     item.pattern_index = static_cast<std::uint32_t>(i);
     item.pattern = plan_.patterns[i];
-    item.exposure_ns = plan_.exposure_ns;
+    item.exposure_ns = exposure_ns;
+    item.exposure_index = exposure_index;
     FrameTiming& timing = item.timing;
     timing.view_index = view.index;
     timing.projector_id = projector_id;
@@ -301,7 +329,7 @@ std::optional<Failure> ScanRun::collect(std::deque<SequencedFrame>& awaiting, co
   hal::Camera& camera = *devices_.camera;
   while (!awaiting.empty()) {
     SequencedFrame& item = awaiting.front();
-    const Nanos due = item.timing.shown_ns + plan_.exposure_ns + frame_timeout_;
+    const Nanos due = item.timing.shown_ns + item.exposure_ns + frame_timeout_;
     const Nanos now = monotonic_now_ns();
     const Nanos limit = all ? due : std::min(due, wait_until);
     auto frame = camera.wait_frame(std::max<Nanos>(0, limit - now));
@@ -354,6 +382,25 @@ std::optional<Failure> ScanRun::check_frame(const hal::Frame& frame, const Seque
         pb::SCAN_STATE_FAILED,
         make_error(Errc::hardware, "camera dropped " + std::to_string(frame.sequence - *last_camera_sequence_ - 1) +
                                        " frame(s) before frame " + std::to_string(frame.sequence))};
+  }
+  // In a bracket a camera that ignored the exposure control would make every exposure the same
+  // and the host's merge meaningless: a frame that says how long it was exposed must say the
+  // exposure asked, within the board's stated error.
+  if (plan_.exposures_ns.size() > 1 && frame.exposure_start_ns != 0 &&
+      frame.exposure_end_ns > frame.exposure_start_ns) {
+    const Nanos length = frame.exposure_end_ns - frame.exposure_start_ns;
+    const auto tolerance = static_cast<Nanos>(board_.budget.exposure_error_max_us * kMicro);
+    if (std::abs(length - item.exposure_ns) > tolerance) {
+      return Failure{
+          pb::SCAN_STATE_FAILED,
+          make_error(Errc::hardware, "camera frame " + std::to_string(frame.sequence) + " was exposed for " +
+                                         slproto::short_number(static_cast<double>(length) / kMicro) + " us, not the " +
+                                         slproto::short_number(static_cast<double>(item.exposure_ns) / kMicro) +
+                                         " us asked (bracket member " + std::to_string(item.exposure_index) +
+                                         "; tolerance " + slproto::short_number(board_.budget.exposure_error_max_us) +
+                                         " us, timing_budget.exposure_error_max_us): the camera ignores or clamps "
+                                         "its exposure control")};
+    }
   }
   // A frame of another size would stream as garbage or desynchronise the host's decode.
   const hal::CameraFormat& expected = devices_.camera_format;

@@ -16,6 +16,7 @@
 #include <new>
 #include <optional>
 #include <stdexcept>
+#include <tuple>
 #include <utility>
 
 #include "slproto/number_text.hpp"
@@ -163,6 +164,8 @@ struct ScanReconstructor::Impl {
 
   struct ViewState {
     double commanded_angle_deg = 0, reported_angle_deg = 0;
+    // Bracket members whose frames are all in (bit e: exposure e), per projector.
+    std::array<std::uint32_t, 2> exposures_queued{};
     std::array<std::optional<TriangulatedView>, 2> triangulated;
     ViewReport report;
     ViewProducts products;
@@ -171,18 +174,31 @@ struct ScanReconstructor::Impl {
 
   // A complete projector-view waiting for a thread to decode and triangulate it.
   struct Job {
-    int view_index = 0, projector = 0;
+    int view_index = 0, projector = 0, exposure = 0;
     std::unique_ptr<ProjectorViewDecoder> decoder;
   };
+
+  // A projector-view's exposures merging as they are decoded (HDR), one at a time.
+  struct Merging {
+    std::mutex mutex;
+    std::unique_ptr<ExposureMerge> merge;
+    double decode_ms = 0;
+  };
+
+  std::vector<double> exposures_us{0};  // the bracket; one entry (unused) without one
+  double reference_exposure_us = 0;
+  bool frames_seen = false;
 
   std::mutex mutex;                          // guards everything below
   std::condition_variable decoder_released;  // a decoder came back or a running job ended
   std::vector<std::unique_ptr<ProjectorViewDecoder>> free_decoders;
   int decoders_in_flight = 0;
-  std::map<std::pair<int, int>, std::unique_ptr<ProjectorViewDecoder>> receiving;  // (view, projector)
-  std::deque<Job> queued;        // complete projector-views not started yet, oldest first
-  int jobs_running = 0;          // jobs some thread is executing right now
-  std::exception_ptr job_error;  // the first job that threw; finish() rethrows it
+  // (view, projector, exposure index)
+  std::map<std::tuple<int, int, int>, std::unique_ptr<ProjectorViewDecoder>> receiving;
+  std::map<std::pair<int, int>, Merging> merging;  // (view, projector) with a bracket
+  std::deque<Job> queued;                          // complete projector-views not started yet, oldest first
+  int jobs_running = 0;                            // jobs some thread is executing right now
+  std::exception_ptr job_error;                    // the first job that threw; finish() rethrows it
   // Set by finish(): Ctrl-C while the last projector-views wait for a thread (one CPU) ends
   // each job before it decodes (ReconstructionInterrupted, rethrown by finish()).
   std::atomic<const std::atomic<bool>*> stop{nullptr};
@@ -239,7 +255,7 @@ struct ScanReconstructor::Impl {
     lock.unlock();
     std::exception_ptr error;
     try {
-      process_projector_view(job.view_index, job.projector, std::move(job.decoder));
+      process_projector_view(job.view_index, job.projector, job.exposure, std::move(job.decoder));
     } catch (...) {
       error = std::current_exception();
     }
@@ -256,7 +272,8 @@ struct ScanReconstructor::Impl {
   }
 
   // Decodes and triangulates one complete projector-view, on whichever thread runs its job.
-  void process_projector_view(int view_index, int projector, std::unique_ptr<ProjectorViewDecoder> decoder) {
+  void process_projector_view(int view_index, int projector, int exposure,
+                              std::unique_ptr<ProjectorViewDecoder> decoder) {
     struct Release {
       Impl* self;
       std::unique_ptr<ProjectorViewDecoder>* decoder;
@@ -264,19 +281,73 @@ struct ScanReconstructor::Impl {
     };
     ProjectorViewReport report;
     report.present = true;
+    DecodedView decoded;
+    {
+      // The decoder (its frames) goes back to the pool as soon as they are decoded, or on a
+      // throw: the next projector-view can stream into it while this one is triangulated.
+      const Release release{this, &decoder};
+      if (const std::atomic<bool>* flag = stop.load(); flag != nullptr && flag->load())
+        throw ReconstructionInterrupted("wait_for_views");
+      const auto start = Clock::now();
+      decoded = decoder->finish();
+      report.decode_ms = ms_since(start);
+    }
+    if (exposures_us.size() > 1) {
+      Merging* merging_view = nullptr;
+      {
+        std::lock_guard lock(mutex);
+        merging_view = &merging[{view_index, projector}];  // std::map: stable address
+      }
+      std::unique_lock merge_lock(merging_view->mutex);
+      if (!merging_view->merge)
+        merging_view->merge = std::make_unique<ExposureMerge>(exposures_us, reference_exposure_us);
+      const auto start = Clock::now();
+      merging_view->merge->add(static_cast<std::size_t>(exposure), std::move(decoded));
+      merging_view->decode_ms += report.decode_ms + ms_since(start);
+      if (!merging_view->merge->complete()) return;
+      merge_lock.unlock();  // the last exposure: nobody else touches this entry
+      complete_merge(view_index, projector);
+      return;
+    }
+    triangulate_projector_view(view_index, projector, std::move(decoded), std::move(report));
+  }
+
+  // Merges a projector-view's exposures (all of them, or in finish() the ones that came) and
+  // triangulates the result.
+  void complete_merge(int view_index, int projector) {
+    std::unique_ptr<ExposureMerge> merge;
+    ProjectorViewReport report;
+    report.present = true;
+    {
+      std::lock_guard lock(mutex);
+      auto it = merging.find({view_index, projector});
+      merge = std::move(it->second.merge);
+      report.decode_ms = it->second.decode_ms;
+      merging.erase(it);
+    }
+    const auto start = Clock::now();
+    DecodedView decoded = merge->finish();
+    report.decode_ms += ms_since(start);
+    report.exposures = merge->shares();
+    if (!merge->complete()) {
+      std::string missing;
+      for (std::size_t e = 0; e < report.exposures.size(); ++e)
+        if (!merge->has(e)) missing += (missing.empty() ? "" : ", ") + slproto::short_number(exposures_us[e]) + " us";
+      decoded.checks.findings.push_back(
+          {"exposures",
+           "only " + std::to_string(merge->added()) + " of the bracket's " + std::to_string(exposures_us.size()) +
+               " exposures arrived (missing or incomplete: " + missing + "); merged from those",
+           "rescan this view, or check the capture for dropped frames"});
+    }
+    triangulate_projector_view(view_index, projector, std::move(decoded), std::move(report));
+  }
+
+  void triangulate_projector_view(int view_index, int projector, DecodedView&& decoded_in,
+                                  ProjectorViewReport&& report_in) {
+    ProjectorViewReport report = std::move(report_in);
     TriangulatedView triangulated;
     {
-      DecodedView decoded;
-      {
-        // The decoder (its frames) goes back to the pool as soon as they are decoded, or on a
-        // throw: the next projector-view can stream into it while this one is triangulated.
-        const Release release{this, &decoder};
-        if (const std::atomic<bool>* flag = stop.load(); flag != nullptr && flag->load())
-          throw ReconstructionInterrupted("wait_for_views");
-        const auto start = Clock::now();
-        decoded = decoder->finish();
-        report.decode_ms = ms_since(start);
-      }
+      DecodedView decoded = std::move(decoded_in);
       report.decode = decoded.counts;
       const auto start = Clock::now();
       triangulated = triangulators[static_cast<std::size_t>(projector)]->triangulate(decoded);
@@ -466,6 +537,18 @@ ScanReconstructor::~ScanReconstructor() {
   }
 }
 
+void ScanReconstructor::set_exposure_bracket(const std::vector<double>& exposures_us, double reference_us) {
+  Impl& s = *impl_;
+  std::lock_guard lock(s.mutex);
+  if (s.frames_seen) throw std::invalid_argument("set_exposure_bracket: frames have arrived already");
+  if (exposures_us.empty() || exposures_us.size() > 16)
+    throw std::invalid_argument("exposure bracket of " + std::to_string(exposures_us.size()) +
+                                " exposures (1 to 16 can be merged)");
+  (void)ExposureMerge(exposures_us, reference_us);  // its checks: positive, finite
+  s.exposures_us = exposures_us;
+  s.reference_exposure_us = reference_us;
+}
+
 void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::byte> pixels) {
   Impl& s = *impl_;
   const std::string where = "frame (view " + std::to_string(info.view_index) + ", projector " +
@@ -475,6 +558,11 @@ void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::by
   if (info.view_index < 0) throw std::invalid_argument(where + ": negative view index");
   if (info.pattern_index >= s.plan.size())
     throw std::invalid_argument(where + ": the pattern plan has only " + std::to_string(s.plan.size()) + " patterns");
+  if (info.exposure_index >= s.exposures_us.size())
+    throw std::invalid_argument(where + ": exposure index " + std::to_string(info.exposure_index) +
+                                (s.exposures_us.size() > 1
+                                     ? " is beyond the bracket of " + std::to_string(s.exposures_us.size())
+                                     : " but the scan has no exposure bracket"));
   const int expected_bpp = s.options.decode.bit_depth > 8 ? 2 : 1;
   if (info.bytes_per_pixel != expected_bpp)
     throw std::invalid_argument(where + ": " + std::to_string(info.bytes_per_pixel) + " bytes per pixel, expected " +
@@ -515,9 +603,13 @@ void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::by
                                 slproto::short_number(view.commanded_angle_deg) + " deg)");
   }
   const auto side = static_cast<std::size_t>(info.projector);
-  if (view.triangulated[side].has_value() || view.report.projectors[side].present)
-    throw std::invalid_argument(where + ": this projector-view is already complete");
-  const auto key = std::make_pair(info.view_index, info.projector);
+  const std::uint32_t exposure_bit = 1u << info.exposure_index;
+  if (view.triangulated[side].has_value() || view.report.projectors[side].present ||
+      (view.exposures_queued[side] & exposure_bit) != 0)
+    throw std::invalid_argument(where + ": this projector-view is already complete" +
+                                (s.exposures_us.size() > 1 ? " at this exposure" : ""));
+  s.frames_seen = true;
+  const auto key = std::make_tuple(info.view_index, info.projector, static_cast<int>(info.exposure_index));
   auto it = s.receiving.find(key);
   if (it == s.receiving.end()) it = s.receiving.emplace(key, s.acquire_decoder(lock)).first;
   ProjectorViewDecoder& decoder = *it->second;
@@ -532,8 +624,9 @@ void ScanReconstructor::add_frame(const FrameInfo& info, std::span<const std::by
   lock.lock();
   auto owned = std::move(it->second);
   s.receiving.erase(it);
-  view.report.projectors[side].present = true;
-  s.queued.push_back({info.view_index, info.projector, std::move(owned)});
+  view.exposures_queued[side] |= exposure_bit;
+  if (view.exposures_queued[side] == (1u << s.exposures_us.size()) - 1) view.report.projectors[side].present = true;
+  s.queued.push_back({info.view_index, info.projector, static_cast<int>(info.exposure_index), std::move(owned)});
   lock.unlock();
   Impl* impl = impl_.get();
   s.workers.run([impl] { impl->run_queued_task(); });
@@ -584,6 +677,21 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
   ScanResult result;
   result.stage_ms["wait_for_views"] = ms_since(start);
 
+  // A bracket some exposures of which never completed: merged from the ones that did.
+  {
+    std::vector<std::pair<int, int>> partial;
+    {
+      std::lock_guard lock(s.mutex);
+      for (const auto& [key, entry] : s.merging)
+        if (entry.merge) partial.push_back(key);
+    }
+    for (const auto& [view_index, projector] : partial) {
+      interrupt();
+      s.complete_merge(view_index, projector);
+      std::lock_guard lock(s.mutex);
+      s.views[view_index].report.projectors[static_cast<std::size_t>(projector)].present = true;
+    }
+  }
   // No frame comes after finish(): projector-views that never completed are dropped, and every
   // decoder's frame store (96 MB each at full resolution) is freed before the views are
   // registered and merged, the stages that hold every view's cloud at once.

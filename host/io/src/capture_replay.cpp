@@ -20,6 +20,7 @@ core::FrameInfo frame_info(const slproto::pb::FrameHeader& header) {
   info.reported_angle_deg = header.reported_angle_deg();
   info.projector = static_cast<int>(header.projector_id());
   info.pattern_index = header.pattern_index();
+  info.exposure_index = header.exposure_index();
   info.stride_bytes = header.stride_bytes();
   info.bytes_per_pixel = slproto::bytes_per_pixel(header.pixel_format());
   return info;
@@ -77,6 +78,7 @@ FrameSlots::FrameSlots(const slproto::pb::ScanRequest& request, std::uint64_t re
     : request_offset_(request_offset),
       views_(static_cast<std::size_t>(request.turntable_angles_deg_size())),
       plan_size_(plan_of(request).size()),
+      exposures_(slproto::exposures_of(request).size()),
       projectors_(request.projectors().begin(), request.projectors().end()) {}
 
 std::optional<std::string> FrameSlots::take(const slproto::pb::FrameHeader& header, std::size_t payload_size,
@@ -92,14 +94,18 @@ std::optional<std::string> FrameSlots::take(const slproto::pb::FrameHeader& head
     return frame + "is of a projector the scan request (offset " + std::to_string(request_offset_) + ") does not use";
   if (header.pattern_index() >= plan_size_)
     return frame + "is beyond the scan request's pattern plan of " + std::to_string(plan_size_) + " patterns";
+  if (header.exposure_index() >= exposures_)
+    return frame + "has exposure index " + std::to_string(header.exposure_index()) + " but the scan request has " +
+           (exposures_ == 1 ? std::string("no exposure bracket")
+                            : "a bracket of " + std::to_string(exposures_) + " exposures");
   for (const double angle : {header.commanded_angle_deg(), header.reported_angle_deg()})
     if (!(std::abs(angle) <= 1e6)) {
       char shown[32];
       std::snprintf(shown, sizeof shown, "%.6g", angle);
       return frame + "has a turntable angle of " + shown + " deg";
     }
-  const auto [slot, added] =
-      taken_.emplace(std::tuple{header.view_index(), header.projector_id(), header.pattern_index()}, offset);
+  const auto [slot, added] = taken_.emplace(
+      std::tuple{header.view_index(), header.projector_id(), header.exposure_index(), header.pattern_index()}, offset);
   if (!added) return frame + "repeats the frame at offset " + std::to_string(slot->second);
   return std::nullopt;
 }
@@ -159,7 +165,7 @@ std::vector<std::string> describe_missing_frames(const slproto::pb::ScanRequest&
                                                  std::size_t max_lines) {
   std::size_t per_projector_view = 0;
   if (auto config = slproto::from_proto(request.plan()); config) {
-    per_projector_view = slproto::PatternPlan(*config).size();
+    per_projector_view = slproto::PatternPlan(*config).size() * slproto::exposures_of(request).size();
   }
   // One count per (view, projector) of a request check_scan_request bounds (at most 3600 views,
   // projectors unique and < 2): never an entry per pair a lying request names.

@@ -60,8 +60,9 @@ class PoseScanner {
     scan.add_projectors(0);
     scan.add_projectors(1);
     *scan.mutable_plan() = slproto::to_proto(config);
-    scan.set_exposure_us(request_.exposure_us);
-    scan.set_pattern_period_us(request_.pattern_period_us);
+    const PatternTiming timing = pattern_timing(request_.exposure_us, request_.pattern_period_us, scanner_.board);
+    scan.set_exposure_us(timing.exposure_us);
+    scan.set_pattern_period_us(timing.period_us);
     scan.set_settle_ms(request_.settle_ms);
     scan.set_pixel_format(pixel_format_of(bit_depth_));
     if (place_target_) *scan.mutable_calibration_target() = slproto::to_proto(guided, request_.target);

@@ -18,14 +18,17 @@ using Clock = std::chrono::steady_clock;
 namespace {
 
 slproto::pb::ScanRequest make_scan_request(const LiveScanRequest& command, const slproto::RigCalibration& calibration,
-                                           const core::ReconstructionOptions& options) {
+                                           const core::ReconstructionOptions& options,
+                                           const slproto::pb::HelloReply& board) {
+  const PatternTiming timing = pattern_timing(command.exposure_us, command.pattern_period_us, board);
   slproto::pb::ScanRequest request;
   request.set_scan_id(static_cast<std::uint64_t>(std::chrono::system_clock::now().time_since_epoch().count()));
   for (double angle : command.angles_deg) request.add_turntable_angles_deg(angle);
   for (std::uint32_t projector : command.projectors) request.add_projectors(projector);
   *request.mutable_plan() = slproto::to_proto(calibration.pattern_plan);
-  request.set_exposure_us(command.exposure_us);
-  request.set_pattern_period_us(command.pattern_period_us);
+  request.set_exposure_us(timing.exposure_us);
+  for (const std::uint32_t exposure_us : command.exposure_bracket_us) request.add_exposure_bracket_us(exposure_us);
+  request.set_pattern_period_us(timing.period_us);
   request.set_settle_ms(command.settle_ms);
   request.set_pixel_format(
       options.decode.bit_depth > 8
@@ -47,7 +50,12 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
   log.info("connected to " + out.board.board_name() + " (" + out.board.software_version() + ", protocol " +
            std::to_string(out.board.protocol_version()) + ")");
 
-  const slproto::pb::ScanRequest request = make_scan_request(command, calibration, options);
+  if (!command.exposure_bracket_us.empty() &&
+      (out.board.capabilities() & slproto::pb::CAPABILITY_EXPOSURE_BRACKET) == 0)
+    throw DeviceError("the scanner '" + out.board.board_name() + "' (" + out.board.software_version() +
+                      ") cannot sequence an exposure bracket (no CAPABILITY_EXPOSURE_BRACKET): it would capture one "
+                      "exposure; upgrade slscand, or scan without --exposure-bracket");
+  const slproto::pb::ScanRequest request = make_scan_request(command, calibration, options, scanner.board);
   if (const auto folder = std::filesystem::path(command.capture_path).parent_path(); !folder.empty())
     std::filesystem::create_directories(folder);
   const slproto::FrameCodec* codec = nullptr;
@@ -69,10 +77,12 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
 
   StreamReconstruction stream(calibration, options);
   stream.set_plan(slproto::PatternPlan(calibration.pattern_plan));
+  stream.set_exposures(request);
   if (auto status = connection.send(request); !status)
     throw DeviceError("sending the scan request: " + status.error().message);
-  const std::size_t expected =
-      slproto::PatternPlan(calibration.pattern_plan).size() * command.angles_deg.size() * command.projectors.size();
+  const std::size_t expected = slproto::PatternPlan(calibration.pattern_plan).size() *
+                               slproto::exposures_of(request).size() * command.angles_deg.size() *
+                               command.projectors.size();
   bool abort_sent = false;
   // After Ctrl-C the board sends what it has queued and ScanDone; a board that does not answer
   // within this grace does not hold the host (every frame received is in the capture either way).

@@ -24,7 +24,9 @@ ReprocessResult reprocess_capture(const std::string& capture_path, const slproto
       [&](const slproto::pb::ScanRequest& scan_request) {
         const slproto::PatternPlan plan = io::plan_of(scan_request);
         stream.set_plan(plan);
-        expected_frames = plan.size() * static_cast<std::size_t>(scan_request.turntable_angles_deg_size()) *
+        stream.set_exposures(scan_request);
+        expected_frames = plan.size() * slproto::exposures_of(scan_request).size() *
+                          static_cast<std::size_t>(scan_request.turntable_angles_deg_size()) *
                           static_cast<std::size_t>(scan_request.projectors_size());
       },
       [&](const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {

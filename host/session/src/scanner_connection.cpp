@@ -9,6 +9,14 @@
 
 namespace slscan::session {
 
+PatternTiming pattern_timing(std::uint32_t exposure_us, std::uint32_t period_us, const slproto::pb::HelloReply& board) {
+  const bool board_says = board.pattern_exposure_us() != 0 && board.pattern_period_us() != 0;
+  PatternTiming timing;
+  timing.exposure_us = exposure_us != 0 ? exposure_us : (board_says ? board.pattern_exposure_us() : 8333);
+  timing.period_us = period_us != 0 ? period_us : (board_says ? board.pattern_period_us() : 10000);
+  return timing;
+}
+
 ScannerConnection connect_to_scanner(const ScannerAddress& address, const std::string& client_name,
                                      std::chrono::milliseconds timeout) {
   auto connection = slproto::connect(address.host, address.port, timeout);

@@ -23,12 +23,21 @@ void StreamReconstruction::set_plan(const slproto::PatternPlan& plan) {
   plan_ = plan;
 }
 
+void StreamReconstruction::set_exposures(const slproto::pb::ScanRequest& request) {
+  if (reconstructor_) throw io::IoError("the exposure bracket is set after the first frame");
+  exposures_us_.clear();
+  for (const std::uint32_t us : slproto::exposures_of(request)) exposures_us_.push_back(us);
+  reference_exposure_us_ = request.exposure_us();
+}
+
 void StreamReconstruction::add(const slproto::pb::FrameHeader& header, std::span<const std::byte> payload) {
   if (!plan_) throw io::IoError("a frame arrived before the scan request: the capture does not say its pattern plan");
   try {
-    if (!reconstructor_)
+    if (!reconstructor_) {
       reconstructor_ = std::make_unique<core::ScanReconstructor>(calibration_, *plan_, static_cast<int>(header.width()),
                                                                  static_cast<int>(header.height()), options_);
+      if (exposures_us_.size() > 1) reconstructor_->set_exposure_bracket(exposures_us_, reference_exposure_us_);
+    }
     reconstructor_->add_frame(io::frame_info(header), payload);
   } catch (const std::bad_alloc&) {
     throw core::ReconstructionOutOfMemory("decode (the frame of view " + std::to_string(header.view_index()) +

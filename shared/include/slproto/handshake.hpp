@@ -53,6 +53,7 @@ struct ServerIdentity {
   std::uint32_t projector_count = 0;
   std::string auth_token;  // "" = no token required
   VersionRange versions;   // what this server speaks (tests play other builds with it)
+  std::uint32_t pattern_exposure_us = 0, pattern_period_us = 0;  // the board file's timing
 };
 
 // Server side: waits for Hello, checks the version range and the token (constant-time

@@ -8,6 +8,7 @@
 #include <span>
 #include <string>
 #include <variant>
+#include <vector>
 
 #include "slproto/pattern_plan.hpp"
 #include "slproto/result.hpp"
@@ -108,6 +109,7 @@ concept ControlMessage = requires {
 };
 
 MessageType type_of(const Body& body) noexcept;
+// NOLINTNEXTLINE(bugprone-exception-escape): a Body is never valueless (messages.cpp)
 const google::protobuf::MessageLite& as_message_lite(const Body& body) noexcept;
 
 // Bytes per pixel of a pixel format (1 for mono8, 2 for mono10/12), 0 if unknown.
@@ -129,8 +131,17 @@ Result<PatternPlanConfig> from_proto(const pb::PatternPlanConfig& config);
 
 // Checks a scan request a board could start: at least one angle (each finite, in
 // [-360, 360]), at least one projector (ids < projector_count, no duplicates), a valid
-// plan, exposure_us > 0, pattern_period_us >= exposure_us, a known pixel format.
+// plan, exposure_us > 0, pattern_period_us >= exposure_us, a known pixel format; a bracket of
+// at most kMaxExposureBracket distinct exposures, each > 0 and <= pattern_period_us.
 Status check_scan_request(const pb::ScanRequest& request, std::uint32_t projector_count = 2);
+
+// More exposures per view than any HDR scheme uses (Gocator: 5, Xema: 6): a bigger bracket is
+// a mistake that would multiply the scan's frames.
+inline constexpr int kMaxExposureBracket = 8;
+
+// The exposures (us) a request captures every view at, in capture order: its bracket, or
+// exposure_us alone. FrameHeader.exposure_index indexes this list.
+std::vector<std::uint32_t> exposures_of(const pb::ScanRequest& request);
 
 // Error <-> wire. Unknown codes become Errc::internal with the number in the text.
 pb::Error to_proto(const Error& error, std::uint64_t scan_id = 0, bool fatal = false);

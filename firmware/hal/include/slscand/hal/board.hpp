@@ -70,6 +70,10 @@ struct BoardConfig {
   CameraTriggerSource trigger_source = CameraTriggerSource::projector;
   std::optional<unsigned> camera_trigger_line;  // [camera] trigger_line, for trigger = "gpio"
   double readout_us = 0;                        // sensor read-out after the exposure
+  // Frames a new exposure time takes to apply (the camera's control latency): after changing
+  // it between a bracket's passes the sequencer waits this many pattern periods before the
+  // next trigger, so no frame of the new pass is exposed with the old setting.
+  int exposure_change_frames = 0;
   // GenICam (aravis) cameras: where the trigger enters the camera and the sensor window.
   std::string camera_trigger_input = "Line0";  // TriggerSource for external triggers (LineN)
   std::string camera_trigger_activation = "RisingEdge";

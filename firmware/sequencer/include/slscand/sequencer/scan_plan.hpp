@@ -19,7 +19,10 @@ struct ScanPlan {
   std::vector<double> angles_deg;
   std::vector<std::uint32_t> projectors;  // 0 = left, 1 = right
   slproto::PatternPlan patterns;
-  Nanos exposure_ns = 0;
+  Nanos exposure_ns = 0;  // the request's exposure_us: the reference of a bracket
+  // What every view is captured at, in order (slproto::exposures_of): one pass per projector at
+  // each. One entry, exposure_ns, without a bracket.
+  std::vector<Nanos> exposures_ns;
   Nanos period_ns = 0;
   Nanos trigger_delay_ns = 0;  // projector trigger -> camera trigger (gpio-trigger boards)
   Nanos settle_ns = 0;
@@ -28,7 +31,13 @@ struct ScanPlan {
   // ScanRequest.calibration_target: where a simulated board puts its checkerboard (hardware
   // ignores it; the user places the board).
   std::optional<slproto::CalibrationTargetPlacement> calibration_target;
-  std::uint64_t frames_total() const { return angles_deg.size() * projectors.size() * patterns.size(); }
+  std::uint64_t frames_total() const {
+    return angles_deg.size() * exposures_ns.size() * projectors.size() * patterns.size();
+  }
+  // The pattern periods a whole scan takes at the camera (frames plus the waits for each
+  // exposure change), turntable moves and settling excluded: what the timing report compares
+  // the capture time with.
+  std::uint64_t capture_periods(int exposure_change_frames) const;
 };
 
 // Bounds on what one request may ask of the board (docs/security.md): beyond them a request is

@@ -1,5 +1,7 @@
 // The hard-timed scan loop. For each angle: rotate and wait for the table to report the
-// position, then settle; for each projector (left, then right): start its sequence and, at
+// position, then settle; for each exposure of the plan's bracket (one without a bracket: set
+// the camera's exposure, wait the board's exposure_change_frames periods for it to apply),
+// for each projector (left, then right): start its sequence and, at
 // absolute deadlines t0 + i * period (clock_nanosleep TIMER_ABSTIME), advance it, wait for its
 // TRIG_OUT_1 acknowledgement, collect the camera frame and hand it to the streamer through a
 // bounded queue. A full queue pauses the sequencer between patterns (the pause is logged and
@@ -32,6 +34,7 @@ struct SequencedFrame {
   std::uint32_t pattern_index = 0;
   slproto::Pattern pattern;
   Nanos exposure_ns = 0;
+  std::uint32_t exposure_index = 0;  // position in ScanPlan::exposures_ns
   FrameTiming timing;
   std::vector<TimingEvent> events;  // this frame's events (and the view's turntable events on its first frame)
   hal::Frame frame;

@@ -21,6 +21,7 @@
 #include "slscan/core/cloud_filters.hpp"
 #include "slscan/core/decode.hpp"
 #include "slscan/core/depth_smoothing.hpp"
+#include "slscan/core/exposure_merge.hpp"
 #include "slscan/core/fusion.hpp"
 #include "slscan/core/mesh.hpp"
 #include "slscan/core/normals.hpp"
@@ -106,7 +107,11 @@ struct ProjectorViewReport {
   double shading_correlation = 0;
   TriangulateCounts triangulate;
   FlyingPixelCounts flying_pixels;
-  double decode_ms = 0, triangulate_ms = 0;
+  double decode_ms = 0, triangulate_ms = 0;  // decode: every exposure's, and their merge
+  // HDR (a capture with an exposure bracket): what each exposure gave, in bracket order; empty
+  // for a single exposure. A projector-view some exposures of which never arrived is merged from
+  // the ones that did, with a finding ("exposures") saying which are missing.
+  std::vector<ExposureShare> exposures;
 };
 
 struct ViewReport {
@@ -153,8 +158,9 @@ struct FrameInfo {
   int view_index = 0;
   double commanded_angle_deg = 0;
   double reported_angle_deg = 0;
-  int projector = 0;              // 0 left, 1 right
-  std::size_t pattern_index = 0;  // position in the pattern plan
+  int projector = 0;               // 0 left, 1 right
+  std::size_t pattern_index = 0;   // position in the pattern plan
+  std::size_t exposure_index = 0;  // position in the exposure bracket (set_exposure_bracket), 0 without one
   std::size_t stride_bytes = 0;
   int bytes_per_pixel = 1;  // 1 (8-bit) or 2 (uint16)
 };
@@ -193,6 +199,13 @@ class ScanReconstructor {
   ~ScanReconstructor();
   ScanReconstructor(const ScanReconstructor&) = delete;
   ScanReconstructor& operator=(const ScanReconstructor&) = delete;
+
+  // HDR: every projector-view comes at each of these exposures (us, bracket order; the frames'
+  // exposure_index), decoded one by one and merged per pixel (ExposureMerge), intensities
+  // scaled to `reference_us`. Before the first frame; without it, one exposure. Throws
+  // std::invalid_argument on an empty or oversized bracket, a non-positive exposure, or after
+  // a frame.
+  void set_exposure_bracket(const std::vector<double>& exposures_us, double reference_us);
 
   // One camera frame. Views and projectors may arrive in any order, but a view's frames must
   // all arrive before finish(). Throws std::invalid_argument naming what is wrong (projector id,

@@ -46,14 +46,15 @@ class FrameSlots {
   // pattern the request does not have, an absurd turntable angle, a frame given twice).
   std::optional<std::string> take(const slproto::pb::FrameHeader& header, std::size_t payload_size,
                                   std::uint64_t offset);
-  std::size_t slots() const noexcept { return views_ * projectors_.size() * plan_size_; }
+  std::size_t slots() const noexcept { return views_ * projectors_.size() * exposures_ * plan_size_; }
   std::size_t taken() const noexcept { return taken_.size(); }
 
  private:
   std::uint64_t request_offset_ = 0;
-  std::size_t views_ = 0, plan_size_ = 0;
+  std::size_t views_ = 0, plan_size_ = 0, exposures_ = 1;
   std::vector<std::uint32_t> projectors_;
-  std::map<std::tuple<std::uint32_t, std::uint32_t, std::uint32_t>, std::uint64_t> taken_;
+  // (view, projector, exposure index, pattern) -> the frame's offset
+  std::map<std::tuple<std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t>, std::uint64_t> taken_;
 };
 
 // Replays a capture file: `on_request` for the scan request (first in the file), `on_frame` for

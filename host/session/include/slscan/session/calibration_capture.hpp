@@ -30,11 +30,11 @@ struct CalibrationCaptureRequest {
   slproto::CheckerboardSize target;         // the printed checkerboard (default: the virtual rig's)
   slproto::PatternPlanConfig pattern_plan;  // along columns; rows use it with axis = rows
   double platform_radius_mm = 150;
-  bool turntable = true;  // false: free poses only
-  std::string folder;     // capture folder, written pose by pose ("" = in memory only)
-  bool resume = false;    // `folder` holds poses already: continue after them
-  std::uint32_t exposure_us = 8333;
-  std::uint32_t pattern_period_us = 10000;
+  bool turntable = true;                // false: free poses only
+  std::string folder;                   // capture folder, written pose by pose ("" = in memory only)
+  bool resume = false;                  // `folder` holds poses already: continue after them
+  std::uint32_t exposure_us = 0;        // 0: the board's (pattern_timing)
+  std::uint32_t pattern_period_us = 0;  // 0: the board's
   std::uint32_t settle_ms = 200;
   std::chrono::milliseconds stall_timeout{60000};  // no frame for this long: the scanner is stuck
   std::string source;                              // for the calibration file; "" = the scanner's address and board

@@ -21,8 +21,11 @@ struct LiveScanRequest {
   ScannerAddress scanner;
   std::vector<double> angles_deg{0, 60, 120, 180, 240, 300};
   std::vector<std::uint32_t> projectors{0, 1};
-  std::uint32_t exposure_us = 8333;
-  std::uint32_t pattern_period_us = 10000;
+  std::uint32_t exposure_us = 0;  // 0: the board's (pattern_timing)
+  // HDR: every view captured at each of these exposures (us), merged per pixel by the host
+  // (docs/hdr.md); exposure_us is then the reference intensities are scaled to. Empty: one.
+  std::vector<std::uint32_t> exposure_bracket_us;
+  std::uint32_t pattern_period_us = 0;  // 0: the board's
   std::uint32_t settle_ms = 200;
   std::string capture_path;  // the capture file to record (written to a partial name, renamed when complete)
   bool compress = false;     // store frames zstd-compressed (lossless; docs/scale.md)

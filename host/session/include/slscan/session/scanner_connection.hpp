@@ -21,6 +21,14 @@ struct ScannerConnection {
   slproto::pb::HelloReply board;  // name, software and protocol version, capabilities
 };
 
+// The exposure and pattern period a scan asks for: the user's where given (non-zero), else the
+// board's (its HelloReply: the board file's [timing]), else a DLP4500's 8-bit pattern (8333 us
+// in a 10000 us period) from a board too old to say.
+struct PatternTiming {
+  std::uint32_t exposure_us = 0, period_us = 0;
+};
+PatternTiming pattern_timing(std::uint32_t exposure_us, std::uint32_t period_us, const slproto::pb::HelloReply& board);
+
 // Connects and says hello as `client_name`; throws DeviceError naming the address and why
 // (no route, refused, wrong token, a protocol version we do not speak).
 ScannerConnection connect_to_scanner(const ScannerAddress& address, const std::string& client_name,

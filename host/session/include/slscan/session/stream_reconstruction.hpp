@@ -22,6 +22,9 @@ class StreamReconstruction {
 
   // Throws io::IoError naming every field where `plan` differs from the calibration's.
   void set_plan(const slproto::PatternPlan& plan);
+  // The request's exposures (slproto::exposures_of): with a bracket, each projector-view is
+  // decoded at every exposure and merged per pixel (docs/hdr.md). Before the first frame.
+  void set_exposures(const slproto::pb::ScanRequest& request);
   // A std::bad_alloc while decoding (this frame's, or an earlier frame's job that ran out on a
   // worker thread) becomes core::ReconstructionOutOfMemory naming the frame.
   void add(const slproto::pb::FrameHeader& header, std::span<const std::byte> payload);
@@ -41,6 +44,8 @@ class StreamReconstruction {
   slproto::RigCalibration calibration_;
   core::ReconstructionOptions options_;
   std::optional<slproto::PatternPlan> plan_;
+  std::vector<double> exposures_us_;  // the bracket; empty or one: a single exposure
+  double reference_exposure_us_ = 0;
   std::unique_ptr<core::ScanReconstructor> reconstructor_;
   std::vector<slproto::pb::FrameHeader> received_;
 };

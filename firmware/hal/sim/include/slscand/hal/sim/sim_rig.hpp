@@ -36,6 +36,8 @@ struct SimFaults {
   // never delivered (the driver's counter skips it), or delivered with half its bytes.
   int drop_frame_after = -1;
   int short_frame_after = -1;
+  // set_exposure_us() answers OK and changes nothing: a camera that ignores the control.
+  bool camera_ignores_exposure = false;
 };
 
 struct RecordedEdge {
@@ -50,6 +52,7 @@ struct ExposureRecord {
   int side = -1;           // projector lit at exposure start, -1 = none
   int pattern_index = -1;  // its pattern, -1 = none
   int lit_count = 0;       // projectors lit at exposure start (2 = both: a sequencing bug)
+  Nanos exposure_ns = 0;   // the camera's exposure time then
 };
 
 class SimRig {
