@@ -4,11 +4,14 @@
 //   bench_accuracy [--size full|small] [--scenes ballbar,blade,teacup] [--views N] [--mesh]
 //                  [--no-noise] [--no-registration] [--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE]
 //                  [--outliers CSV] [--frame-period-ms P] [--turntable-deg-per-s S] [--prerender]
-//                  [--exposure-bracket F,F,...] [--material NAME]
+//                  [--exposure-bracket F,F,... | --exposure-auto] [--material NAME]
 //
 // --exposure-bracket 1,0.25,0.125 captures every view at each of these fractions of the scene's
 // reference exposure and merges them per pixel (HDR, docs/hdr.md); --material NAME gives every
 // object that finish (e.g. the shiny blade in matte paint: the same shape, for comparison).
+// --exposure-auto meters as `slscan scan --exposure auto` does (white and black of both
+// projectors at the first view, at 1/8 .. 16 x the reference; core::choose_exposures with the
+// decoder's floors) and scans with the exposure or bracket it picks.
 //
 // Frames reach the reconstructor at a camera's pace: one every P ms (default 8.333, a DLP4500's
 // 8-bit pattern period), and between views the turntable's move (60 deg at S = 360 deg/s plus
@@ -33,6 +36,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -46,6 +50,7 @@
 
 #include "slproto/calibration.hpp"
 #include "slrig/rig.hpp"
+#include "slscan/core/auto_exposure.hpp"
 #include "slscan/core/fusion.hpp"
 #include "slscan/core/huge_pages.hpp"
 #include "slscan/core/measure.hpp"
@@ -286,18 +291,69 @@ struct Pacing {
 // scene's reference exposure; a finish for every object instead of the preset's.
 struct Exposing {
   std::vector<double> bracket{1.0};
+  bool automatic = false;
   std::optional<slrig::Material> material;
 };
 
+// The metering pass of `slscan scan --exposure auto` on the rendered scene: the bracket as
+// fractions of the reference, and the choice for the report.
+std::vector<double> meter_scene(const slrig::Scene& scene, const slscan::core::DecodeOptions& decode, Json& report) {
+  const double reference_us = scene.sensor.exposure_us;
+  const std::vector<double> ladder = slscan::core::metering_ladder(reference_us, 1, 1e9, 0);
+  const slrig::ViewRenderer renderer(scene, scene.view_angles_deg.at(0), 0);
+  const slproto::PatternPlan plan(scene.pattern_plan);
+  std::vector<std::uint8_t> frame(renderer.frame_bytes());
+  const bool wide = scene.sensor.bit_depth > 8;
+  std::vector<slscan::core::MeteringFrames> frames;
+  for (const int side : {0, 1})
+    for (const double exposure_us : ladder) {
+      slscan::core::MeteringFrames f;
+      f.exposure_us = exposure_us;
+      f.projector = side;
+      for (const auto kind : {slproto::PatternKind::white, slproto::PatternKind::black}) {
+        renderer.render(static_cast<slproto::ProjectorSide>(side), plan, static_cast<std::size_t>(plan.index_of(kind)),
+                        frame, slrig::Exposure{.exposure_us = exposure_us});
+        auto& image = kind == slproto::PatternKind::white ? f.white : f.black;
+        image.resize(frame.size() / (wide ? 2 : 1));
+        if (wide)
+          std::memcpy(image.data(), frame.data(), frame.size());
+        else
+          std::copy(frame.begin(), frame.end(), image.begin());
+      }
+      frames.push_back(std::move(f));
+    }
+  slscan::core::AutoExposureOptions choose;
+  choose.min_contrast_dn = std::max<double>(decode.min_contrast_dn, 2.0 * decode.min_modulation_dn);
+  choose.saturation_dn = decode.saturation_level();
+  choose.reference_us = reference_us;
+  const slscan::core::AutoExposureChoice choice = slscan::core::choose_exposures(frames, choose);
+  std::vector<double> fractions;
+  for (const double e : choice.exposures_us) fractions.push_back(e / reference_us);
+  report = {{"fractions_of_reference", fractions},
+            {"usable_share", choice.usable_share},
+            {"saturated_share", choice.saturated_share},
+            {"dark_share", choice.dark_share},
+            {"unreachable_share", choice.unreachable_share},
+            {"met", choice.met},
+            {"reason", choice.reason}};
+  return fractions;
+}
+
 Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool mesh, bool noise, int decode_smoothing,
                int quadratic_radius, bool registration, std::FILE* outliers_csv, const Pacing& pacing,
-               const Exposing& exposing) {
+               Exposing exposing) {
   auto scene_or = slrig::scene_preset(name, size);
   if (!scene_or) throw std::runtime_error(scene_or.error().message);
   scene_or->sensor.noise = noise;
   if (exposing.material)
     for (slrig::SceneObject& object : scene_or->objects) slrig::apply_material(object, *exposing.material);
   const slrig::Scene scene = *scene_or;
+  Json auto_exposure;
+  if (exposing.automatic) {
+    slscan::core::DecodeOptions decode;
+    decode.bit_depth = scene.sensor.bit_depth;
+    exposing.bracket = meter_scene(scene, decode, auto_exposure);
+  }
   const double reference_us = scene.sensor.exposure_us;
   const std::size_t exposures = exposing.bracket.size();
   std::vector<double> bracket_us;
@@ -399,6 +455,7 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   Json out;
   out["scene"] = name;
   out["size"] = std::to_string(width) + " x " + std::to_string(height);
+  if (exposing.automatic) out["auto_exposure"] = auto_exposure;
   Json view_reports = Json::array();
   double filled_area_total = 0;
   for (std::size_t v = 0; v < result.views.size(); ++v) {
@@ -609,6 +666,8 @@ int main(int argc, char** argv) try {
         }
         if (exposing.bracket.empty() || exposing.bracket.size() > 8)
           throw std::invalid_argument("--exposure-bracket: 1 to 8 fractions of the reference exposure");
+      } else if (arg == "--exposure-auto") {
+        exposing.automatic = true;
       } else if (arg == "--material") {
         auto material = slrig::parse_material(value());
         if (!material) throw std::invalid_argument("--material: " + material.error().message);
@@ -625,7 +684,7 @@ int main(int argc, char** argv) try {
                      "[--no-registration] "
                      "[--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE] [--outliers CSV] "
                      "[--frame-period-ms P] [--turntable-deg-per-s S] [--prerender] [--exposure-bracket F,F,...] "
-                     "[--material NAME]\n");
+                     "[--exposure-auto] [--material NAME]\n");
         return 2;
       }
     } catch (const std::exception& e) {

@@ -62,6 +62,8 @@ int run_demo(const DemoCommand& command, const Console& console) {
   scan.config_path = command.config_path;
   scan.exposure_us = 2000;
   scan.exposure_bracket_us = command.exposure_bracket_us;
+  scan.exposure_mode = command.exposure_mode;
+  scan.auto_exposure = command.auto_exposure;
   scan.pattern_period_us = 5000;
   scan.settle_ms = 50;
   if (command.scene == "ballbar") scan.measure_ball_bar = true;

@@ -121,6 +121,38 @@ void add_mesh_options(CLI::App& command, MeshOverrides& mesh) {
           "ply,stl,obj,3mf"));
 }
 
+// scan / verify / demo: auto-exposure (docs/hdr.md, "Auto-exposure").
+void add_auto_exposure_options(CLI::App& command, std::string& mode, slscan::session::AutoExposureRequest& limits) {
+  auto* exposure = command
+                       .add_option("--exposure", mode,
+                                   "fixed: --exposure-us (or --exposure-bracket); auto: meter white and black at a "
+                                   "ladder of exposures first and pick one exposure or a bracket")
+                       ->check(CLI::IsMember({"fixed", "auto"}))
+                       ->capture_default_str();
+  command
+      .add_option("--time-budget-s", limits.time_budget_s,
+                  "With --exposure auto: the most the scan's pattern frames may take (s; 0: no limit)")
+      ->check(CLI::Range(0.0, 86400.0))
+      ->needs(exposure);
+  command
+      .add_option("--mains", limits.mains_hz,
+                  "With --exposure auto: 50 or 60 to keep exposures whole periods of the lights' flicker (0: off)")
+      ->check(CLI::IsMember({0, 50, 60}))
+      ->needs(exposure);
+  command
+      .add_option("--max-saturation", limits.max_saturated_share,
+                  "With --exposure auto: the share of the lit pixels that may stay clipped")
+      ->check(CLI::Range(0.0, 0.5))
+      ->capture_default_str()
+      ->needs(exposure);
+  command
+      .add_option("--max-dark", limits.max_dark_share,
+                  "With --exposure auto: the share of the lit pixels that may stay too faint to decode")
+      ->check(CLI::Range(0.0, 0.5))
+      ->capture_default_str()
+      ->needs(exposure);
+}
+
 // scan / verify: the scanner, the calibration, the output folder and the scan plan.
 void add_scan_options(CLI::App& command, ScanCommand& scan, std::string& connect) {
   command.add_option("--connect", connect, "Scanner address HOST:PORT")->capture_default_str();
@@ -137,6 +169,7 @@ void add_scan_options(CLI::App& command, ScanCommand& scan, std::string& connect
                   "--exposure-us is then the reference intensities are scaled to")
       ->delimiter(',')
       ->check(CLI::Range(1u, 1'000'000u));
+  add_auto_exposure_options(command, scan.exposure_mode, scan.auto_exposure);
   command.add_option("--period-us", scan.pattern_period_us, "Pattern period (default: the board's)");
   command.add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
   command
@@ -545,6 +578,7 @@ static int run_command_line(int argc, char** argv) {
                    "HDR: exposures (us, comma-separated; the sim camera's 2000 us is the scene's reference)")
       ->delimiter(',')
       ->check(CLI::Range(1u, 1'000'000u));
+  add_auto_exposure_options(*demo_cmd, demo.exposure_mode, demo.auto_exposure);
   demo_cmd->add_flag("--overwrite", demo.overwrite,
                      "Replace the capture of an earlier demo in --out (without it, such a folder is refused)");
 

@@ -22,6 +22,7 @@
 #include "outputs.hpp"
 #include "slproto/calibration.hpp"
 #include "slproto/handshake.hpp"
+#include "slproto/number_text.hpp"
 #include "slproto/zstd_codec.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/io/capture_replay.hpp"
@@ -450,6 +451,53 @@ int refuse_to_overwrite(const std::string& command, const std::string& capture) 
   return exit_usage;
 }
 
+namespace {
+
+// The metering pass's choice and what it saw (docs/hdr.md, "Auto-exposure").
+json auto_exposure_json(const session::MeteredExposure& metered, const session::AutoExposureRequest& limits) {
+  const core::AutoExposureChoice& choice = metered.choice;
+  json rungs = json::array();
+  for (const core::RungMeter& rung : choice.rungs)
+    rungs.push_back({{"exposure_us", rung.exposure_us},
+                     {"usable_share", rung.usable_share},
+                     {"clipped_share", rung.clipped_share},
+                     {"dark_share", rung.dark_share}});
+  return {{"exposures_us", choice.exposures_us},
+          {"reference_us", metered.exposure_us},
+          {"period_us", metered.period_us},
+          {"lit_pixels", choice.lit_pixels},
+          {"usable_share", choice.usable_share},
+          {"saturated_share", choice.saturated_share},
+          {"dark_share", choice.dark_share},
+          {"unreachable_share", choice.unreachable_share},
+          {"met", choice.met},
+          {"reason", choice.reason},
+          {"capture_s", choice.capture_s},
+          {"limits",
+           {{"max_saturated_share", limits.max_saturated_share},
+            {"max_dark_share", limits.max_dark_share},
+            {"time_budget_s", limits.time_budget_s},
+            {"mains_hz", limits.mains_hz}}},
+          {"metered", rungs}};
+}
+
+std::string auto_exposure_text(const core::AutoExposureChoice& choice) {
+  std::string exposures;
+  for (const double e : choice.exposures_us) exposures += (exposures.empty() ? "" : ", ") + slproto::short_number(e);
+  auto percent = [](double share) {
+    std::array<char, 32> text{};
+    std::snprintf(text.data(), text.size(), "%.1f %%", 100 * share);
+    return std::string(text.data());
+  };
+  return std::string("auto-exposure: ") + (choice.exposures_us.size() == 1 ? "one exposure, " : "a bracket of ") +
+         exposures + " us: " + percent(choice.usable_share) + " of the lit pixels usable, " +
+         percent(choice.saturated_share) + " left clipped, " + percent(choice.dark_share) + " left faint, " +
+         percent(choice.unreachable_share) + " beyond any exposure" +
+         (choice.met ? "" : " (the limits are not met: " + choice.reason + ")");
+}
+
+}  // namespace
+
 int run_scan(const ScanCommand& command, const Console& console) {
   const auto start = Clock::now();
   const RunInfo run{"scan", std::chrono::system_clock::now(), command.part_id, command.operator_name};
@@ -464,6 +512,7 @@ int run_scan(const ScanCommand& command, const Console& console) {
   request.projectors = command.projectors;
   request.exposure_us = command.exposure_us;
   request.exposure_bracket_us = command.exposure_bracket_us;
+  if (command.exposure_mode == "auto") request.auto_exposure = command.auto_exposure;
   request.pattern_period_us = command.pattern_period_us;
   request.settle_ms = command.settle_ms;
   request.stall_timeout = std::chrono::seconds(command.stall_timeout_s);
@@ -501,6 +550,13 @@ int run_scan(const ScanCommand& command, const Console& console) {
                         request.capture_path +
                         " (no model written): slscan reprocess with more memory reconstructs it");
   }
+  if (scan.auto_exposure) {
+    const std::string text = auto_exposure_text(scan.auto_exposure->choice);
+    if (scan.auto_exposure->choice.met)
+      console.info(text);
+    else
+      console.warn(text);
+  }
   const core::ScanResult& result = *scan.reconstruction;
   check_not_empty(result, request.capture_path, " (the capture is kept)");
   json report = provenance(options, calibration, command.calibration_path, run);
@@ -520,6 +576,7 @@ int run_scan(const ScanCommand& command, const Console& console) {
   report["board_frames_dropped"] = scan.done->frames_dropped();
   report["camera_link"] = camera_link_json(*scan.done, console);
   report["last_frame_to_model_s"] = scan.last_frame_to_model_s;
+  if (scan.auto_exposure) report["auto_exposure"] = auto_exposure_json(*scan.auto_exposure, command.auto_exposure);
   if (command.measure_ball_bar) {
     try {
       const core::FeatureRule rule;

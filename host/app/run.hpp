@@ -15,6 +15,7 @@
 #include "progress.hpp"
 #include "slscan/core/feature_metrology.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
+#include "slscan/session/exposure_metering.hpp"
 #include "slscan/session/session_log.hpp"
 
 namespace slscan::app {
@@ -117,6 +118,8 @@ struct ScanCommand {
   std::vector<std::uint32_t> projectors{0, 1};
   std::uint32_t exposure_us = 0;                   // 0: the board's [timing] pattern_exposure_us
   std::vector<std::uint32_t> exposure_bracket_us;  // HDR (docs/hdr.md); empty: exposure_us alone
+  std::string exposure_mode = "fixed";             // "auto": metered first (docs/hdr.md, "Auto-exposure")
+  session::AutoExposureRequest auto_exposure;      // its limits, used with "auto"
   std::uint32_t pattern_period_us = 0;             // 0: the board's pattern_period_us
   std::uint32_t settle_ms = 200;
   std::uint32_t stall_timeout_s = 60;  // no frame for this long: the scan fails
@@ -190,6 +193,8 @@ struct DemoCommand {
   // HDR: exposures (us) of the sim board's camera, whose 2000 us stands for the scene's
   // reference exposure; empty: 2000 alone.
   std::vector<std::uint32_t> exposure_bracket_us;
+  std::string exposure_mode = "fixed";  // "auto": metered first
+  session::AutoExposureRequest auto_exposure;
 };
 int run_demo(const DemoCommand& command, const Console& console);
 

@@ -3,6 +3,9 @@
 // default exposure and once with a bracket; the bracket must decode what the default exposure
 // loses to clipping, report what each exposure gave, and reprocess to the same bytes. A bracket
 // the board cannot run ends the scan with the value and the limit named, and writes no model.
+// Auto-exposure (`--exposure auto`) meters first: on the shiny blade it picks a bracket that
+// decodes what the default loses, on a matte sphere the board's own exposure alone; a time
+// budget no scan fits is refused before anything is captured.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -51,10 +54,12 @@ class HdrScan : public ::testing::Test {
     std::ofstream(dir_ / "config.json") << R"({"mesh": {"enabled": false}})";
     single_ = new Finished(demo("single", {}));
     hdr_ = new Finished(demo("hdr", {"--exposure-bracket", "2000,250"}));
+    auto_ = new Finished(demo("auto", {"--exposure", "auto"}));
   }
   static void TearDownTestSuite() {
     delete single_;
     delete hdr_;
+    delete auto_;
     if (!keep_) fs::remove_all(dir_);
   }
   void TearDown() override {
@@ -63,10 +68,11 @@ class HdrScan : public ::testing::Test {
       std::printf("keeping %s (logs, outputs) to look at\n", dir_.c_str());
     }
   }
-  static Finished demo(const std::string& name, const std::vector<std::string>& extra) {
+  static Finished demo(const std::string& name, const std::vector<std::string>& extra,
+                       const std::string& scene = "shiny_blade") {
     std::vector<std::string> args{SLSCAN_BIN,  "demo",
                                   "--small",   "--true-calibration",
-                                  "--scene",   "shiny_blade",
+                                  "--scene",   scene,
                                   "--slscand", SLSCAND_BIN,
                                   "--board",   std::string(SLSCAN_SOURCE_DIR) + "/boards/sim.toml",
                                   "--config",  (dir_ / "config.json").string(),
@@ -79,6 +85,7 @@ class HdrScan : public ::testing::Test {
   static inline fs::path dir_;
   static inline Finished* single_ = nullptr;
   static inline Finished* hdr_ = nullptr;
+  static inline Finished* auto_ = nullptr;
   static inline bool keep_ = false;
 };
 
@@ -134,6 +141,51 @@ TEST_F(HdrScan, ABracketTheBoardCannotRunIsRefusedNamingTheValueAndTheLimit) {
   // No outputs as if it had scanned (the capture records the request and the refusal).
   EXPECT_FALSE(fs::exists(dir_ / "refused" / "model.ply"));
   EXPECT_FALSE(fs::exists(dir_ / "refused" / "report.json"));
+}
+
+TEST_F(HdrScan, AutoExposureBracketsTheShinyBlade) {
+  ASSERT_EQ(single_->exit_code, 0) << single_->err;
+  ASSERT_EQ(auto_->exit_code, 0) << auto_->err;
+  EXPECT_NE((auto_->out + auto_->err).find("metering the exposure: white and black at 8 exposures, 250 to 32000 us"),
+            std::string::npos)
+      << auto_->out << auto_->err;
+  const json metered = report("auto")["auto_exposure"];
+  ASSERT_TRUE(metered.is_object()) << report("auto").dump(1).substr(0, 2000);
+  const auto exposures = metered["exposures_us"].get<std::vector<double>>();
+  ASSERT_GE(exposures.size(), 2u) << metered.dump(1);
+  EXPECT_LT(exposures.front(), 2000) << "the highlights need an exposure shorter than the board's";
+  EXPECT_TRUE(metered["met"].get<bool>()) << metered.dump(1);
+  EXPECT_LE(metered["saturated_share"].get<double>(), 0.01);
+  EXPECT_EQ(metered["metered"].size(), 8u);
+  // What the scan did: the bracket chosen, in the frames and in the decode.
+  const Totals single = decode_totals(report("single")), automatic = decode_totals(report("auto"));
+  ASSERT_TRUE(automatic.has_exposures);
+  EXPECT_LT(automatic.saturated, single.saturated / 20);
+  EXPECT_GT(automatic.valid, single.valid + single.saturated * 9 / 10);
+  EXPECT_GT(report("auto")["scan"]["model"]["points"].get<double>(),
+            1.3 * report("single")["scan"]["model"]["points"].get<double>());
+}
+
+TEST_F(HdrScan, AutoExposureKeepsAMattePartAtTheBoardsExposure) {
+  const Finished matte = demo("auto_matte", {"--exposure", "auto"}, "sphere");
+  ASSERT_EQ(matte.exit_code, 0) << matte.err;
+  const json metered = report("auto_matte")["auto_exposure"];
+  EXPECT_EQ(metered["exposures_us"], json::array({2000.0})) << metered.dump(1);
+  EXPECT_TRUE(metered["met"].get<bool>()) << metered.dump(1);
+  // One exposure: no bracket in the scan.
+  for (const json& view : report("auto_matte")["scan"]["views"])
+    for (const json& p : view["projectors"]) EXPECT_FALSE(p.contains("exposures"));
+}
+
+TEST_F(HdrScan, ATimeBudgetNoScanFitsIsRefusedBeforeCapturing) {
+  const Finished refused = demo("budget", {"--exposure", "auto", "--time-budget-s", "0.5"});
+  EXPECT_NE(refused.exit_code, 0);
+  // 6 views x 2 projectors x 19 frames at >= 3235 us each: 0.74 s at least.
+  EXPECT_NE(refused.err.find("--time-budget-s 0.5: too short for the scan at any exposure (228 frames"),
+            std::string::npos)
+      << refused.err;
+  EXPECT_FALSE(fs::exists(dir_ / "budget" / "capture.slcap"));
+  EXPECT_FALSE(fs::exists(dir_ / "budget" / "report.json"));
 }
 
 }  // namespace

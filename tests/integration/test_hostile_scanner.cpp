@@ -338,6 +338,17 @@ TEST_F(HostileScanner, ABracketForABoardThatCannotSequenceItIsRefusedBeforeTheSc
             std::string::npos)
       << finished.err;
   EXPECT_EQ(frames_kept("bracket"), -1) << "no scan was asked for, so no capture";
+  // Auto-exposure meters with a bracket: refused alike, before the metering pass.
+  FakeBoard older_again([](slproto::Connection&, int, const pb::ScanRequest&) {});
+  const Finished metering =
+      run({SLSCAN_BIN, "scan", "--connect", older_again.address(), "--calib", (dir_ / "calib.json").string(), "--out",
+           (dir_ / "auto").string(), "--angles", "0", "--exposure", "auto"},
+          dir_ / "auto.log", 60s);
+  EXPECT_EQ(metering.exit_code, 3) << metering.err;
+  EXPECT_NE(metering.err.find("--exposure auto: the scanner"), std::string::npos) << metering.err;
+  EXPECT_NE(metering.err.find("no CAPABILITY_EXPOSURE_BRACKET), which metering needs"), std::string::npos)
+      << metering.err;
+  EXPECT_EQ(frames_kept("auto"), -1) << "no scan was asked for, so no capture";
 }
 
 TEST_F(HostileScanner, HugeDeclaredLengths) {

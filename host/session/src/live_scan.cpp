@@ -55,7 +55,27 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
     throw DeviceError("the scanner '" + out.board.board_name() + "' (" + out.board.software_version() +
                       ") cannot sequence an exposure bracket (no CAPABILITY_EXPOSURE_BRACKET): it would capture one "
                       "exposure; upgrade slscand, or scan without --exposure-bracket");
-  const slproto::pb::ScanRequest request = make_scan_request(command, calibration, options, scanner.board);
+  LiveScanRequest scan_command = command;
+  if (command.auto_exposure) {
+    if (!command.exposure_bracket_us.empty())
+      throw std::invalid_argument("--exposure auto chooses the bracket: give it or --exposure-bracket, not both");
+    if (command.angles_deg.empty()) throw std::invalid_argument("the scan has no view (no --angles)");
+    MeteringScan metering;
+    metering.first_angle_deg = command.angles_deg.front();
+    metering.projectors = command.projectors;
+    metering.exposure_us = command.exposure_us;
+    metering.period_us = command.pattern_period_us;
+    metering.settle_ms = command.settle_ms;
+    metering.scan_frames_per_exposure =
+        slproto::PatternPlan(calibration.pattern_plan).size() * command.angles_deg.size() * command.projectors.size();
+    metering.stall_timeout = command.stall_timeout;
+    metering.stop = command.stop;
+    out.auto_exposure = meter_exposure(scanner, metering, *command.auto_exposure, calibration, options, log);
+    scan_command.exposure_us = out.auto_exposure->exposure_us;
+    scan_command.exposure_bracket_us = out.auto_exposure->bracket_us;
+    scan_command.pattern_period_us = out.auto_exposure->period_us;
+  }
+  const slproto::pb::ScanRequest request = make_scan_request(scan_command, calibration, options, scanner.board);
   if (const auto folder = std::filesystem::path(command.capture_path).parent_path(); !folder.empty())
     std::filesystem::create_directories(folder);
   const slproto::FrameCodec* codec = nullptr;

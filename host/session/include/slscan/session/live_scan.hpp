@@ -12,6 +12,7 @@
 #include "slproto/calibration.hpp"
 #include "slproto/messages.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
+#include "slscan/session/exposure_metering.hpp"
 #include "slscan/session/scanner_connection.hpp"
 #include "slscan/session/session_log.hpp"
 
@@ -25,6 +26,10 @@ struct LiveScanRequest {
   // HDR: every view captured at each of these exposures (us), merged per pixel by the host
   // (docs/hdr.md); exposure_us is then the reference intensities are scaled to. Empty: one.
   std::vector<std::uint32_t> exposure_bracket_us;
+  // Set: a metering pass picks the exposure or the bracket (and the period) first
+  // (exposure_metering.hpp); exposure_us is then where its ladder centres, and
+  // exposure_bracket_us must be empty.
+  std::optional<AutoExposureRequest> auto_exposure;
   std::uint32_t pattern_period_us = 0;  // 0: the board's
   std::uint32_t settle_ms = 200;
   std::string capture_path;  // the capture file to record (written to a partial name, renamed when complete)
@@ -37,10 +42,11 @@ struct LiveScanRequest {
 
 struct LiveScanResult {
   slproto::pb::HelloReply board;
-  bool aborted = false;                       // stopped on request; `reconstruction` is empty
-  std::size_t frames = 0;                     // frames received (every one is in the capture)
-  std::size_t frames_expected = 0;            // frames the scan request asks for
-  std::optional<slproto::pb::ScanDone> done;  // the board's end-of-scan statistics
+  bool aborted = false;                          // stopped on request; `reconstruction` is empty
+  std::size_t frames = 0;                        // frames received (every one is in the capture)
+  std::size_t frames_expected = 0;               // frames the scan request asks for
+  std::optional<slproto::pb::ScanDone> done;     // the board's end-of-scan statistics
+  std::optional<MeteredExposure> auto_exposure;  // what the metering pass chose
   // Set: the host ran out of memory in this stage while frames arrived; `reconstruction` is
   // empty and the capture holds every frame received (all of them when `done` is set and the
   // scan was not aborted: decoding was given up, recording went on).
