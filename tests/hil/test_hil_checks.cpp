@@ -272,3 +272,77 @@ TEST(HilBoardBudget, ShippedBoardsCarryTheirBudgetsAndObserverWiring) {
 }
 
 }  // namespace
+
+namespace {
+
+// The bracketed sim scan (hil_sim_bracket: 2000 and 500 us, 2 periods after each change).
+class HilBracketChecks : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto board = slscand::hal::load_board(HIL_BRACKET_BOARD);
+    ASSERT_TRUE(board.ok()) << board.error().message;
+    board_ = *board;
+    auto record = load_record(HIL_BRACKET_RECORD_DIR);
+    ASSERT_TRUE(record.ok()) << record.error().message << " (the hil_sim_bracket test writes it)";
+    record_ = *record;
+  }
+  static const Check* find(const HilReport& report, const std::string& name) {
+    for (const auto& c : report.checks)
+      if (c.name == name) return &c;
+    return nullptr;
+  }
+  slscand::hal::BoardConfig board_;
+  HilRecord record_;
+};
+
+TEST_F(HilBracketChecks, TheRecordHoldsEveryExposureInScanOrderAndPasses) {
+  ASSERT_EQ(record_.scan.exposures_us, (std::vector<double>{2000, 500}));
+  EXPECT_EQ(record_.scan.exposure_change_frames, 2u);
+  ASSERT_EQ(record_.frames.size(), record_.scan.expected_frames());
+  EXPECT_EQ(record_.scan.expected_frames(), 2u * 2u * 2u * record_.scan.patterns);
+  // 2 views, each waiting 2 periods for its change to 500 us.
+  EXPECT_EQ(record_.scan.capture_periods(), record_.scan.expected_frames() + 4u);
+  std::size_t short_frames = 0;
+  for (const FrameRecord& f : record_.frames) short_frames += f.exposure_index == 1 ? 1 : 0;
+  EXPECT_EQ(short_frames, record_.frames.size() / 2);
+  CheckOptions behaviour;
+  behaviour.timing = false;
+  const HilReport report = evaluate(record_, board_, behaviour);
+  EXPECT_TRUE(report.passed()) << report.table();
+}
+
+TEST_F(HilBracketChecks, AFrameOfTheWrongExposureOrOutOfOrderIsNamed) {
+  // The first frame of the second exposure's pass claims the first exposure.
+  auto it = std::find_if(record_.frames.begin(), record_.frames.end(),
+                         [](const FrameRecord& f) { return f.exposure_index == 1; });
+  ASSERT_NE(it, record_.frames.end());
+  it->exposure_index = 0;
+  CheckOptions behaviour;
+  behaviour.timing = false;
+  HilReport report = evaluate(record_, board_, behaviour);
+  const Check* order = find(report, "frames in scan order");
+  ASSERT_NE(order, nullptr);
+  EXPECT_FALSE(order->pass);
+  EXPECT_NE(order->detail.find("exposure 0"), std::string::npos) << order->detail;
+  // An exposure index beyond the bracket.
+  it->exposure_index = 7;
+  report = evaluate(record_, board_, behaviour);
+  order = find(report, "frames in scan order");
+  ASSERT_NE(order, nullptr);
+  EXPECT_NE(order->detail.find("has exposure index 7; the scan's bracket has 2"), std::string::npos) << order->detail;
+}
+
+TEST_F(HilBracketChecks, AFrameExposedForTheOtherMemberFailsTheExposureBudget) {
+  // A camera that kept 2000 us for a 500 us frame (the timestamps say so).
+  auto it = std::find_if(record_.frames.begin(), record_.frames.end(),
+                         [](const FrameRecord& f) { return f.exposure_index == 1 && f.exposure_end_ns != 0; });
+  ASSERT_NE(it, record_.frames.end());
+  it->exposure_end_ns = it->exposure_start_ns + 2'000'000;
+  const HilReport report = evaluate(record_, board_, CheckOptions{});
+  const Check* exposure = find(report, "timing_budget.exposure_error_max_us");
+  ASSERT_NE(exposure, nullptr);
+  EXPECT_FALSE(exposure->pass);
+  EXPECT_NE(exposure->detail.find("exposure 500 us"), std::string::npos) << exposure->detail;
+}
+
+}  // namespace

@@ -216,20 +216,29 @@ HilReport evaluate(const HilRecord& r, const slscand::hal::BoardConfig& board, c
         extra ? std::to_string(frames.size()) + " frames for a plan of " + std::to_string(expected) : "");
   }
   {
-    // Scan order: view, then projector pass, then pattern; sequence numbers 0, 1, 2, ...
+    // Scan order: view, then exposure (a bracket's member), then projector pass, then pattern;
+    // sequence numbers 0, 1, 2, ...
     std::string problem;
     for (std::size_t i = 0; i < frames.size() && problem.empty(); ++i) {
       const FrameRecord& f = frames[i];
       if (f.sequence != i) problem = "frame " + std::to_string(i) + " has sequence " + std::to_string(f.sequence);
+      if (problem.empty() && f.exposure_index >= r.scan.exposure_count())
+        problem = "frame " + std::to_string(i) + " has exposure index " + std::to_string(f.exposure_index) +
+                  "; the scan's bracket has " + std::to_string(r.scan.exposure_count());
       if (i == 0) continue;
       const FrameRecord& p = frames[i - 1];
-      const bool next_pattern = f.view == p.view && f.projector == p.projector && f.pattern == p.pattern + 1;
-      const bool next_pass = f.pattern == 0 && (f.view > p.view || (f.view == p.view && f.projector != p.projector));
+      const bool next_pattern = f.view == p.view && f.exposure_index == p.exposure_index &&
+                                f.projector == p.projector && f.pattern == p.pattern + 1;
+      const bool next_pass =
+          f.pattern == 0 && ((f.view > p.view && f.exposure_index == 0) ||
+                             (f.view == p.view && f.exposure_index == p.exposure_index && f.projector != p.projector) ||
+                             (f.view == p.view && f.exposure_index == p.exposure_index + 1));
       if (problem.empty() && !next_pattern && !next_pass) {
-        problem = "frame " + std::to_string(i) + " (view " + std::to_string(f.view) + ", projector " +
-                  std::to_string(f.projector) + ", pattern " + std::to_string(f.pattern) + ") follows view " +
-                  std::to_string(p.view) + ", projector " + std::to_string(p.projector) + ", pattern " +
-                  std::to_string(p.pattern);
+        auto name = [](const FrameRecord& x) {
+          return "view " + std::to_string(x.view) + ", exposure " + std::to_string(x.exposure_index) + ", projector " +
+                 std::to_string(x.projector) + ", pattern " + std::to_string(x.pattern);
+        };
+        problem = "frame " + std::to_string(i) + " (" + name(f) + ") follows " + name(p);
       }
       if (problem.empty() && f.trigger_ns <= p.trigger_ns) {
         problem = "frame " + std::to_string(i) + " was triggered at " + at(f.trigger_ns) + ", not after frame " +
@@ -264,6 +273,7 @@ HilReport evaluate(const HilRecord& r, const slscand::hal::BoardConfig& board, c
     if (problem.empty()) {
       const auto starts = log_times(r.log, "EXPOSURE_START");
       std::vector<Nanos> frame_starts;
+      frame_starts.reserve(frames.size());
       for (const auto& f : frames) frame_starts.push_back(f.exposure_start_ns);
       std::sort(frame_starts.begin(), frame_starts.end());
       if (starts != frame_starts) {
@@ -281,16 +291,21 @@ HilReport evaluate(const HilRecord& r, const slscand::hal::BoardConfig& board, c
   double worst_jitter = -1, worst_latency = -1, worst_exposure = -1, worst_delivery = -1;
   for (std::size_t i = 0; i < frames.size(); ++i) {
     const FrameRecord& f = frames[i];
+    const bool known_exposure = f.exposure_index < r.scan.exposure_count();
     const std::string where = "frame " + std::to_string(f.sequence) + " (view " + std::to_string(f.view) + ", " +
-                              kSideNames[f.projector % 2] + ", pattern " + std::to_string(f.pattern) + ")";
+                              kSideNames[f.projector % 2] + ", pattern " + std::to_string(f.pattern) +
+                              (r.scan.exposures_us.empty() || !known_exposure
+                                   ? std::string()
+                                   : ", exposure " + fmt(r.scan.exposure_of(f.exposure_index), 0) + " us") +
+                              ")";
     if (f.exposure_start_ns != 0) {
       const double us = static_cast<double>(f.exposure_start_ns - f.trigger_ns) * 1e-3;
       to_exposure.push_back(us);
       if (us > worst_latency) worst_latency = us, worst_latency_where = where;
     }
-    if (f.exposure_end_ns != 0 && f.exposure_start_ns != 0) {
+    if (f.exposure_end_ns != 0 && f.exposure_start_ns != 0 && known_exposure) {
       const double length = static_cast<double>(f.exposure_end_ns - f.exposure_start_ns) * 1e-3;
-      const double error = std::abs(length - r.scan.exposure_us);
+      const double error = std::abs(length - r.scan.exposure_of(f.exposure_index));
       exposure_error.push_back(length);
       if (error > worst_exposure) worst_exposure = error, worst_exposure_where = where;
     }
@@ -301,7 +316,8 @@ HilReport evaluate(const HilRecord& r, const slscand::hal::BoardConfig& board, c
     }
     if (i > 0) {
       const FrameRecord& p = frames[i - 1];
-      if (p.view == f.view && p.projector == f.projector && p.pattern + 1 == f.pattern) {
+      if (p.view == f.view && p.exposure_index == f.exposure_index && p.projector == f.projector &&
+          p.pattern + 1 == f.pattern) {
         const double us = static_cast<double>(f.trigger_ns - p.trigger_ns) * 1e-3;
         period.push_back(us);
         jitter.push_back(std::abs(us - nominal_us));
@@ -336,20 +352,20 @@ HilReport evaluate(const HilRecord& r, const slscand::hal::BoardConfig& board, c
     budget_max("trigger_to_exposure_max_us", std::max(0.0, worst_latency), budget.trigger_to_exposure_max_us, "us",
                "worst at " + worst_latency_where);
     budget_max("exposure_error_max_us", std::max(0.0, worst_exposure), budget.exposure_error_max_us, "us",
-               "worst at " + worst_exposure_where + " (requested " + fmt(r.scan.exposure_us) + " us)");
+               "worst at " + worst_exposure_where);
     const Stat delivery_stat = report.stats[4];
     budget_max("frame_delivery_p99_us", delivery_stat.p99, budget.frame_delivery_p99_us, "us");
     budget_max("frame_delivery_max_us", delivery_stat.max, budget.frame_delivery_max_us, "us",
                "worst at " + worst_delivery_where);
     const Stat move_stat = report.stats[5];
     budget_max("move_settle_max_ms", move_stat.max, budget.move_settle_max_ms, "ms");
-    double ideal_ns = static_cast<double>(r.scan.expected_frames()) * nominal_us * 1e3;
+    double ideal_ns = static_cast<double>(r.scan.capture_periods()) * nominal_us * 1e3;
     for (const double ms : move_settle) ideal_ns += ms * 1e6;
     const double ratio = ideal_ns > 0 ? static_cast<double>(r.scan.duration_ns) / ideal_ns : 0;
     add("budget", "timing_budget.scan_time_ratio_max", fmt(ratio, 3), "<= " + fmt(budget.scan_time_ratio_max, 3),
         ratio <= budget.scan_time_ratio_max,
         "scan took " + fmt(static_cast<double>(r.scan.duration_ns) * 1e-6) + " ms, ideal " + fmt(ideal_ns * 1e-6) +
-            " ms (frames x period + measured moves)");
+            " ms (frames x period + exposure changes x exposure_change_frames x period + measured moves)");
     report.checks.back().detail = report.checks.back().pass ? "" : report.checks.back().detail;
   }
 

@@ -1,11 +1,13 @@
 #include "hil_record.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <map>
 #include <sstream>
+#include <system_error>
 
 #include "slproto/calibration.hpp"
 
@@ -45,7 +47,9 @@ bool parse_double(const std::string& text, double& out) {
 
 // Calls `row(fields, line_number)` for each data line; the first error it returns stops.
 template <class Fn>
-slproto::Status for_each_row(const std::string& text, const std::string& where, std::size_t columns, Fn row) {
+slproto::Status for_each_row(const std::string& text, const std::string& where, std::size_t columns, Fn row,
+                             std::size_t max_columns = 0) {
+  max_columns = std::max(columns, max_columns);
   std::istringstream in(text);
   std::string line;
   int number = 0;
@@ -53,10 +57,12 @@ slproto::Status for_each_row(const std::string& text, const std::string& where, 
     ++number;
     if (line.empty() || line[0] == '#') continue;
     const auto fields = split(line, ',');
-    if (fields.size() != columns) {
-      return make_error(Errc::malformed, where + ":" + std::to_string(number) + ": expected " +
-                                             std::to_string(columns) + " comma-separated fields, got " +
-                                             std::to_string(fields.size()) + " in '" + line + "'");
+    if (fields.size() < columns || fields.size() > max_columns) {
+      std::string message = where + ":" + std::to_string(number) + ": expected " + std::to_string(columns);
+      if (max_columns > columns) message += " or " + std::to_string(max_columns);
+      message += " comma-separated fields, got " + std::to_string(fields.size());
+      message += " in '" + line + "'";
+      return make_error(Errc::malformed, message);
     }
     if (auto s = row(fields, number); !s) return s;
   }
@@ -71,7 +77,8 @@ slproto::Error bad_field(const std::string& where, int line, const std::string& 
 
 slproto::Result<std::string> read_text_file(const std::string& path) {
   std::FILE* file = std::fopen(path.c_str(), "rb");
-  if (file == nullptr) return make_error(Errc::io_error, "cannot open " + path + ": " + std::strerror(errno));
+  if (file == nullptr)
+    return make_error(Errc::io_error, "cannot open " + path + ": " + std::generic_category().message(errno));
   std::string text;
   char buffer[65536];
   std::size_t n = 0;
@@ -132,6 +139,12 @@ slproto::Status save_record(const HilRecord& r, const std::string& dir) {
   kv("patterns", std::to_string(r.scan.patterns));
   kv("period_us", fmt(r.scan.period_us));
   kv("exposure_us", fmt(r.scan.exposure_us));
+  if (!r.scan.exposures_us.empty()) {
+    std::string list;
+    for (const double e : r.scan.exposures_us) list += (list.empty() ? "" : ",") + fmt(e);
+    kv("exposures_us", list);
+  }
+  kv("exposure_change_frames", std::to_string(r.scan.exposure_change_frames));
   kv("final_state", r.scan.final_state);
   kv("frames_sent", std::to_string(r.scan.frames_sent));
   kv("frames_dropped", std::to_string(r.scan.frames_dropped));
@@ -146,12 +159,13 @@ slproto::Status save_record(const HilRecord& r, const std::string& dir) {
   std::string log = "# kind,monotonic_ns,source\n";
   for (const auto& e : r.log)
     log += "TIMING_EVENT_" + e.kind + "," + std::to_string(e.ns) + "," + std::to_string(e.source) + "\n";
-  std::string frames = "# sequence,view,projector,pattern,trigger_ns,exposure_start_ns,exposure_end_ns,dequeued_ns\n";
+  std::string frames =
+      "# sequence,view,projector,pattern,trigger_ns,exposure_start_ns,exposure_end_ns,dequeued_ns,exposure_index\n";
   for (const auto& f : r.frames) {
     frames += std::to_string(f.sequence) + "," + std::to_string(f.view) + "," + std::to_string(f.projector) + "," +
               std::to_string(f.pattern) + "," + std::to_string(f.trigger_ns) + "," +
               std::to_string(f.exposure_start_ns) + "," + std::to_string(f.exposure_end_ns) + "," +
-              std::to_string(f.dequeued_ns) + "\n";
+              std::to_string(f.dequeued_ns) + "," + std::to_string(f.exposure_index) + "\n";
   }
   std::string edges = "# offset,rising,monotonic_ns\n";
   for (const auto& e : r.edges) {
@@ -198,14 +212,26 @@ slproto::Result<HilRecord> load_record(const std::string& dir) {
     return slproto::Ok{};
   };
   int have_edges = 0;
-  for (auto s : {need_int("views", r.scan.views), need_int("projectors", r.scan.projectors),
-                 need_int("patterns", r.scan.patterns), need_double("period_us", r.scan.period_us),
-                 need_double("exposure_us", r.scan.exposure_us), need_int("frames_sent", r.scan.frames_sent),
-                 need_int("frames_dropped", r.scan.frames_dropped), need_int("duration_ns", r.scan.duration_ns),
-                 need_int("have_edges", have_edges)}) {
+  for (const auto& s : {need_int("views", r.scan.views), need_int("projectors", r.scan.projectors),
+                        need_int("patterns", r.scan.patterns), need_double("period_us", r.scan.period_us),
+                        need_double("exposure_us", r.scan.exposure_us), need_int("frames_sent", r.scan.frames_sent),
+                        need_int("frames_dropped", r.scan.frames_dropped), need_int("duration_ns", r.scan.duration_ns),
+                        need_int("have_edges", have_edges)}) {
     if (!s) return s.error();
   }
   r.have_edges = have_edges != 0;
+  // Added with brackets: absent in older records, which had one exposure and no change.
+  if (kv.count("exposure_change_frames") != 0) {
+    if (auto s = need_int("exposure_change_frames", r.scan.exposure_change_frames); !s) return s.error();
+  }
+  if (auto it = kv.find("exposures_us"); it != kv.end()) {
+    for (std::string item : split(it->second, ',')) {
+      double e = 0;
+      if (!parse_double(item, e) || !(e > 0))
+        return make_error(Errc::malformed, where + ": 'exposures_us' holds '" + item.append("', not an exposure"));
+      r.scan.exposures_us.push_back(e);
+    }
+  }
   if (auto v = need("final_state"); v)
     r.scan.final_state = *v;
   else
@@ -221,10 +247,11 @@ slproto::Result<HilRecord> load_record(const std::string& dir) {
   auto frames_text = read_text_file(dir + "/frames.csv");
   if (!frames_text) return std::move(frames_text).error();
   const std::string frames_where = dir + "/frames.csv";
-  auto status =
-      for_each_row(*frames_text, frames_where, 8, [&](const std::vector<std::string>& f, int line) -> slproto::Status {
-        std::int64_t v[8];
-        for (int i = 0; i < 8; ++i) {
+  auto status = for_each_row(
+      *frames_text, frames_where, 8,
+      [&](const std::vector<std::string>& f, int line) -> slproto::Status {
+        std::int64_t v[9] = {};
+        for (int i = 0; i < static_cast<int>(f.size()); ++i) {
           if (!parse_i64(f[static_cast<std::size_t>(i)], v[i]) || v[i] < 0) {
             return bad_field(frames_where, line, "field " + std::to_string(i + 1), f[static_cast<std::size_t>(i)]);
           }
@@ -238,9 +265,14 @@ slproto::Result<HilRecord> load_record(const std::string& dir) {
         fr.exposure_start_ns = v[5];
         fr.exposure_end_ns = v[6];
         fr.dequeued_ns = v[7];
+        if (v[8] >= static_cast<std::int64_t>(r.scan.exposure_count()))
+          return bad_field(frames_where, line,
+                           "exposure index (the bracket has " + std::to_string(r.scan.exposure_count()) + ")", f[8]);
+        fr.exposure_index = static_cast<std::uint32_t>(v[8]);
         r.frames.push_back(fr);
         return slproto::Ok{};
-      });
+      },
+      9);
   if (!status) return status.error();
 
   auto edges_text = read_text_file(dir + "/edges.csv");

@@ -28,6 +28,7 @@ struct FrameRecord {
   std::uint32_t view = 0;
   std::uint32_t projector = 0;
   std::uint32_t pattern = 0;
+  std::uint32_t exposure_index = 0;  // the bracket member (0 without a bracket)
   Nanos trigger_ns = 0;
   Nanos exposure_start_ns = 0;
   Nanos exposure_end_ns = 0;
@@ -53,7 +54,21 @@ struct ScanInfo {
   std::uint64_t frames_dropped = 0;
   Nanos duration_ns = 0;
   std::string text;
-  std::uint64_t expected_frames() const { return static_cast<std::uint64_t>(views) * projectors * patterns; }
+  // HDR (docs/hdr.md): the bracket's exposures in capture order (empty: exposure_us alone) and
+  // the pattern periods the board waits after each change (its exposure_change_frames).
+  std::vector<double> exposures_us;
+  std::uint32_t exposure_change_frames = 0;
+  std::uint64_t exposure_count() const { return exposures_us.empty() ? 1 : exposures_us.size(); }
+  double exposure_of(std::uint32_t index) const { return exposures_us.empty() ? exposure_us : exposures_us.at(index); }
+  std::uint64_t expected_frames() const {
+    return static_cast<std::uint64_t>(views) * projectors * patterns * exposure_count();
+  }
+  // Frames plus the waits after exposure changes, in pattern periods: each view waits for the
+  // change to every bracket member but the first (ScanPlan::capture_periods; the change back to
+  // the first happens while the turntable moves).
+  std::uint64_t capture_periods() const {
+    return expected_frames() + static_cast<std::uint64_t>(views) * (exposure_count() - 1) * exposure_change_frames;
+  }
 };
 
 struct HilRecord {

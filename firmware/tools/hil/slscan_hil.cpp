@@ -1,7 +1,10 @@
 // slscan_hil: the hardware-in-the-loop timing harness (docs/hil.md).
 //
-//   slscan_hil --board FILE --slscand PATH [--views N] [--out DIR] [--json FILE] [--no-timing] [--no-realtime]
-//       launches `slscand --board FILE --port 0 --timing-log DIR`, drives a scan as a host would, and checks it;
+//   slscan_hil --board FILE --slscand PATH [--views N] [--exposure-bracket US,US,...] [--out DIR] [--json FILE]
+//              [--no-timing] [--no-realtime]
+//       launches `slscand --board FILE --port 0 --timing-log DIR`, drives a scan as a host would, and checks it
+//       (with a bracket, every view at each exposure: the frames' order and exposures, the waits after
+//       each change in the ideal scan time);
 //   slscan_hil --board FILE --connect HOST:PORT --timing-log-dir DIR [...]
 //       the same against a slscand already running on this board (started with --timing-log DIR);
 //   slscan_hil check --board FILE --dir DIR [--json FILE] [--no-timing]
@@ -57,6 +60,7 @@ using slscan::hil::Nanos;
 struct Options {
   std::string board_path, slscand_path, connect, timing_log_dir, out_dir, json_path, token_file, token, check_dir;
   long views = 2;
+  std::vector<std::uint32_t> exposure_bracket_us;  // HDR (docs/hdr.md); empty: the board's exposure alone
   bool timing = true;
   bool realtime = true;
 };
@@ -66,7 +70,8 @@ struct Options {
       stderr,
       "slscan_hil: %s\n"
       "usage: slscan_hil --board FILE (--slscand PATH | --connect HOST:PORT --timing-log-dir DIR)\n"
-      "                  [--views N] [--out DIR] [--json FILE] [--token-file F] [--no-timing] [--no-realtime]\n"
+      "                  [--views N] [--exposure-bracket US,US,...] [--out DIR] [--json FILE] [--token-file F]\n"
+      "                  [--no-timing] [--no-realtime]\n"
       "       slscan_hil check --board FILE --dir DIR [--json FILE] [--no-timing]\n",
       message.c_str());
   std::exit(2);  // NOLINT(concurrency-mt-unsafe): the command line is read before any thread starts
@@ -160,10 +165,20 @@ int report(const slscan::hil::HilRecord& record, const slscand::hal::BoardConfig
   slscan::hil::CheckOptions check_options;
   check_options.timing = o.timing;
   const auto result = slscan::hil::evaluate(record, board, check_options);
-  std::printf("board %s (%s): %u views x %u projectors x %u patterns, period %.0f us, exposure %.0f us, scan %.3f s\n",
-              board.name.c_str(), board.source_path.c_str(), record.scan.views, record.scan.projectors,
-              record.scan.patterns, record.scan.period_us, record.scan.exposure_us,
-              static_cast<double>(record.scan.duration_ns) * 1e-9);
+  std::string exposures = std::to_string(static_cast<long long>(record.scan.exposure_us)) + " us";
+  if (!record.scan.exposures_us.empty()) {
+    exposures.clear();
+    for (const double e : record.scan.exposures_us)
+      exposures += (exposures.empty() ? "" : ", ") + std::to_string(static_cast<long long>(e));
+    exposures = "bracket " + exposures + " us (" + std::to_string(record.scan.exposure_change_frames) +
+                " periods after each change)";
+  }
+  std::printf(
+      "board %s (%s): %u views x %u projectors x %u patterns, period %.0f us, exposure %s, scan %.3f s (ideal "
+      "%llu periods + moves)\n",
+      board.name.c_str(), board.source_path.c_str(), record.scan.views, record.scan.projectors, record.scan.patterns,
+      record.scan.period_us, exposures.c_str(), static_cast<double>(record.scan.duration_ns) * 1e-9,
+      static_cast<unsigned long long>(record.scan.capture_periods()));
   std::fputs(result.table().c_str(), stdout);
   std::fflush(stdout);
   if (!o.json_path.empty()) {
@@ -263,7 +278,14 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
   const slproto::PatternPlanConfig plan_config;
   *request.mutable_plan() = slproto::to_proto(plan_config);
   request.set_exposure_us(static_cast<std::uint32_t>(board.pattern_exposure_us));
-  request.set_pattern_period_us(static_cast<std::uint32_t>(board.pattern_period_us));
+  // A bracket's longest exposure with the read-out margin of the board's own timing.
+  std::uint32_t longest_us = static_cast<std::uint32_t>(board.pattern_exposure_us);
+  for (const std::uint32_t e : o.exposure_bracket_us) {
+    request.add_exposure_bracket_us(e);
+    longest_us = std::max(longest_us, e);
+  }
+  request.set_pattern_period_us(static_cast<std::uint32_t>(
+      board.pattern_period_us + (longest_us - static_cast<std::uint32_t>(board.pattern_exposure_us))));
   request.set_timing_events(true);
   request.set_pixel_format(hello->camera().pixel_formats_size() > 0 ? hello->camera().pixel_formats(0)
                                                                     : pb::PIXEL_FORMAT_MONO8);
@@ -278,6 +300,8 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
   record.scan.patterns = static_cast<std::uint32_t>(slproto::PatternPlan(plan_config).size());
   record.scan.period_us = request.pattern_period_us();
   record.scan.exposure_us = request.exposure_us();
+  for (const std::uint32_t e : o.exposure_bracket_us) record.scan.exposures_us.push_back(e);
+  record.scan.exposure_change_frames = static_cast<std::uint32_t>(board.exposure_change_frames);
   std::string error_text;
   for (;;) {
     auto m = connection->receive(60s);
@@ -291,6 +315,7 @@ int run(const Options& o, const slscand::hal::BoardConfig& board) {
       fr.view = f->view_index();
       fr.projector = f->projector_id();
       fr.pattern = f->pattern_index();
+      fr.exposure_index = f->exposure_index();
       fr.trigger_ns = static_cast<Nanos>(f->trigger_ns());
       fr.exposure_start_ns = static_cast<Nanos>(f->exposure_start_ns());
       fr.exposure_end_ns = static_cast<Nanos>(f->exposure_end_ns());
@@ -397,7 +422,21 @@ int main(int argc, char** argv) {
       o.timing = false;
     else if (arg == "--no-realtime")
       o.realtime = false;
-    else if (arg == "--views") {
+    else if (arg == "--exposure-bracket") {
+      const std::string text = value();
+      std::size_t start = 0;
+      while (start <= text.size()) {
+        const std::size_t comma = std::min(text.find(',', start), text.size());
+        const std::string item = text.substr(start, comma - start);
+        char* end = nullptr;
+        const unsigned long us = std::strtoul(item.c_str(), &end, 10);
+        if (item.empty() || *end != '\0' || us < 1 || us > 1'000'000)
+          usage_error("--exposure-bracket wants exposures in us (1..1000000), comma-separated, not '" + text + "'");
+        o.exposure_bracket_us.push_back(static_cast<std::uint32_t>(us));
+        start = comma + 1;
+      }
+      if (o.exposure_bracket_us.size() > 8) usage_error("--exposure-bracket: at most 8 exposures");
+    } else if (arg == "--views") {
       const std::string text = value();
       char* end = nullptr;
       o.views = std::strtol(text.c_str(), &end, 10);
