@@ -203,6 +203,51 @@ cv::Mat source_map(const std::vector<core::FusionSource>& source, int width, int
   return out;
 }
 
+// HDR: which bracket member each pixel of a projector's decode came from, one colour per member
+// (plasma, shortest exposure dark), black where it did not decode, with a legend below.
+cv::Mat exposure_member_map(const std::vector<std::uint8_t>& member, const std::vector<double>& exposures_us, int width,
+                            int height, const std::string& projector) {
+  const std::size_t n = std::max<std::size_t>(1, exposures_us.size());
+  std::vector<cv::Vec3b> palette(n);
+  cv::Mat levels(1, static_cast<int>(n), CV_8UC1);
+  for (std::size_t k = 0; k < n; ++k) {
+    // By exposure, not by bracket order: the shortest darkest whatever order it was captured in.
+    std::size_t rank = 0;
+    for (const double e : exposures_us) rank += e < exposures_us[k] ? 1 : 0;
+    levels.at<unsigned char>(0, static_cast<int>(k)) =
+        static_cast<unsigned char>(n == 1 ? 160 : 40 + (215 * rank) / (n - 1));
+  }
+  cv::Mat coloured;
+  cv::applyColorMap(levels, coloured, cv::COLORMAP_PLASMA);
+  for (std::size_t k = 0; k < n; ++k) palette[k] = coloured.at<cv::Vec3b>(0, static_cast<int>(k));
+  const int panel = std::max(44, height / 9);
+  cv::Mat out(height + panel, width, CV_8UC3, cv::Scalar(0, 0, 0));
+  for (std::size_t i = 0; i < member.size(); ++i)
+    if (member[i] < n) out.at<cv::Vec3b>(static_cast<int>(i) / width, static_cast<int>(i) % width) = palette[member[i]];
+  const double scale = panel / 110.0;
+  const int thickness = std::max(1, static_cast<int>(std::lround(scale * 2)));
+  const int margin = std::max(4, width / 40);
+  const int baseline_y = height + panel - panel / 4;
+  const int box = std::max(6, panel / 3);
+  int x = margin;
+  const cv::Scalar white(255, 255, 255);
+  std::string title = projector + " exposure";
+  int base = 0;
+  for (std::size_t k = 0; k < exposures_us.size(); ++k) {
+    cv::rectangle(out, cv::Rect(x, baseline_y - box, box, box), cv::Scalar(palette[k][0], palette[k][1], palette[k][2]),
+                  cv::FILLED);
+    x += box + margin / 2;
+    const std::string label = number_text(exposures_us[k], "us");
+    cv::putText(out, label, {x, baseline_y}, cv::FONT_HERSHEY_SIMPLEX, scale, white, thickness, cv::LINE_AA);
+    x += cv::getTextSize(label, cv::FONT_HERSHEY_SIMPLEX, scale, thickness, &base).width + margin;
+  }
+  const cv::Size title_size = cv::getTextSize(title, cv::FONT_HERSHEY_SIMPLEX, scale, thickness, &base);
+  if (x + title_size.width < width - margin)
+    cv::putText(out, title, {width - margin - title_size.width, baseline_y}, cv::FONT_HERSHEY_SIMPLEX, scale, white,
+                thickness, cv::LINE_AA);
+  return out;
+}
+
 }  // namespace
 
 std::vector<unsigned char> depth_picture_png(const core::OrganizedCloud& cloud) { return encode_png(depth_map(cloud)); }
@@ -463,6 +508,14 @@ OutputFiles write_set(const std::string& dir, const core::ScanResult& result, js
     picture("depth", depth_map(products.cloud));
     picture("quality", quality_map(products.cloud));
     picture("fusion_source", source_map(products.source, products.cloud.width, products.cloud.height));
+    for (std::size_t side = 0; side < 2; ++side) {
+      if (products.exposure_member[side].empty()) continue;
+      std::vector<double> exposures_us;
+      for (const auto& share : result.views[i].projectors[side].exposures) exposures_us.push_back(share.exposure_us);
+      picture(side == 0 ? "exposure_left" : "exposure_right",
+              exposure_member_map(products.exposure_member[side], exposures_us, products.cloud.width,
+                                  products.cloud.height, side == 0 ? "left" : "right"));
+    }
   }
   for (const auto& [azimuth, elevation] :
        {std::pair{0.0, 20.0}, {90.0, 20.0}, {180.0, 20.0}, {270.0, 20.0}, {0.0, 80.0}}) {

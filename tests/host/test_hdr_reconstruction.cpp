@@ -10,6 +10,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -23,6 +24,7 @@ using slproto::ProjectorSide;
 using slscan::core::FrameInfo;
 using slscan::core::ScanReconstructor;
 using slscan::core::ScanResult;
+using slscan::core::ViewProducts;
 
 constexpr double kFractions[2] = {1.0, 0.125};
 
@@ -140,6 +142,24 @@ TEST(HdrReconstruction, TheBracketAddsWhatTheReferenceClipsAndReportsEachExposur
     EXPECT_EQ(h.exposures[0].chosen + h.exposures[1].chosen, h.decode.valid);
     EXPECT_GT(h.exposures[1].chosen, s.decode.saturated * 9 / 10) << side;
     EXPECT_GT(h.triangulate.valid, s.triangulate.valid) << side;
+    // The "which exposure" map (the view's exposure picture): each decoded pixel's member,
+    // counting as the shares do; not-decoded elsewhere; none without a bracket.
+    EXPECT_TRUE(single.view_products[0].exposure_member[side].empty());
+    const std::vector<std::uint8_t>& member = hdr.view_products[0].exposure_member[side];
+    ASSERT_EQ(member.size(), static_cast<std::size_t>(rendered().width) * static_cast<std::size_t>(rendered().height));
+    std::array<std::size_t, 2> counted{};
+    std::size_t not_decoded = 0;
+    for (const std::uint8_t m : member) {
+      if (m == ViewProducts::kNotDecoded)
+        ++not_decoded;
+      else if (m < 2)
+        ++counted[m];
+      else
+        ADD_FAILURE() << "member " << int{m} << " beyond the bracket of 2";
+    }
+    EXPECT_EQ(counted[0], h.exposures[0].chosen) << side;
+    EXPECT_EQ(counted[1], h.exposures[1].chosen) << side;
+    EXPECT_EQ(not_decoded, member.size() - h.decode.valid) << side;
   }
   EXPECT_GT(hdr.view_products[0].points.size(), single.view_products[0].points.size() * 11 / 10);
 }

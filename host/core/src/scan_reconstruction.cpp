@@ -167,6 +167,7 @@ struct ScanReconstructor::Impl {
     // Bracket members whose frames are all in (bit e: exposure e), per projector.
     std::array<std::uint32_t, 2> exposures_queued{};
     std::array<std::optional<TriangulatedView>, 2> triangulated;
+    std::array<std::vector<std::uint8_t>, 2> exposure_member;  // HDR: ViewProducts::exposure_member
     ViewReport report;
     ViewProducts products;
     bool fused = false;
@@ -327,8 +328,15 @@ struct ScanReconstructor::Impl {
     }
     const auto start = Clock::now();
     DecodedView decoded = merge->finish();
+    std::vector<std::uint8_t> member = merge->chosen();
+    for (std::size_t i = 0; i < member.size(); ++i)
+      if (decoded.mask[i] != DecodeMask::valid) member[i] = ViewProducts::kNotDecoded;
     report.decode_ms += ms_since(start);
     report.exposures = merge->shares();
+    {
+      std::lock_guard lock(mutex);
+      views[view_index].exposure_member[static_cast<std::size_t>(projector)] = std::move(member);
+    }
     if (!merge->complete()) {
       std::string missing;
       for (std::size_t e = 0; e < report.exposures.size(); ++e)
@@ -433,6 +441,7 @@ struct ScanReconstructor::Impl {
     const OrganizedCloud& right = clouds[1];
     FusionResult fused = fuse_left_right(left, right, fusion_options);
     ViewProducts products;
+    products.exposure_member = std::move(view->exposure_member);
     products.source.assign(left.size(), FusionSource::none);
     for (std::size_t i = 0; i < left.size(); ++i) {
       const bool l = left.valid[i] != 0, r = right.valid[i] != 0;

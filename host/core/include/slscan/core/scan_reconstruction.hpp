@@ -136,6 +136,10 @@ struct ViewProducts {
   std::vector<FusionSource> source;                // per pixel
   std::array<OrganizedCloud, 2> projector_clouds;  // only with keep_projector_clouds
   PointCloud points;                               // cloud's valid points with grid normals
+  // HDR: per pixel, the bracket member each projector's merged decode took it from
+  // (kNotDecoded where it did not decode); empty without a bracket.
+  static constexpr std::uint8_t kNotDecoded = 255;
+  std::array<std::vector<std::uint8_t>, 2> exposure_member;
 };
 
 struct ScanResult {
