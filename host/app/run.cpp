@@ -483,7 +483,10 @@ json auto_exposure_json(const session::MeteredExposure& metered, const session::
 
 std::string auto_exposure_text(const core::AutoExposureChoice& choice) {
   std::string exposures;
-  for (const double e : choice.exposures_us) exposures += (exposures.empty() ? "" : ", ") + slproto::short_number(e);
+  for (const double e : choice.exposures_us) {
+    if (!exposures.empty()) exposures += ", ";
+    exposures += slproto::short_number(e);
+  }
   auto percent = [](double share) {
     std::array<char, 32> text{};
     std::snprintf(text.data(), text.size(), "%.1f %%", 100 * share);

@@ -141,7 +141,10 @@ slproto::Status save_record(const HilRecord& r, const std::string& dir) {
   kv("exposure_us", fmt(r.scan.exposure_us));
   if (!r.scan.exposures_us.empty()) {
     std::string list;
-    for (const double e : r.scan.exposures_us) list += (list.empty() ? "" : ",") + fmt(e);
+    for (const double e : r.scan.exposures_us) {
+      if (!list.empty()) list += ',';
+      list += fmt(e);
+    }
     kv("exposures_us", list);
   }
   kv("exposure_change_frames", std::to_string(r.scan.exposure_change_frames));

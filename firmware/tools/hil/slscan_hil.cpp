@@ -168,8 +168,10 @@ int report(const slscan::hil::HilRecord& record, const slscand::hal::BoardConfig
   std::string exposures = std::to_string(static_cast<long long>(record.scan.exposure_us)) + " us";
   if (!record.scan.exposures_us.empty()) {
     exposures.clear();
-    for (const double e : record.scan.exposures_us)
-      exposures += (exposures.empty() ? "" : ", ") + std::to_string(static_cast<long long>(e));
+    for (const double e : record.scan.exposures_us) {
+      if (!exposures.empty()) exposures += ", ";
+      exposures += std::to_string(static_cast<long long>(e));
+    }
     exposures = "bracket " + exposures + " us (" + std::to_string(record.scan.exposure_change_frames) +
                 " periods after each change)";
   }
