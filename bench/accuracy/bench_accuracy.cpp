@@ -5,6 +5,7 @@
 //                  [--no-noise] [--no-registration] [--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE]
 //                  [--outliers CSV] [--frame-period-ms P] [--turntable-deg-per-s S] [--prerender]
 //                  [--exposure-bracket F,F,... | --exposure-auto] [--material NAME]
+//                  [--interreflection SAMPLES] [--fringe-period-px P]
 //
 // --exposure-bracket 1,0.25,0.125 captures every view at each of these fractions of the scene's
 // reference exposure and merges them per pixel (HDR, docs/hdr.md); --material NAME gives every
@@ -12,6 +13,9 @@
 // --exposure-auto meters as `slscan scan --exposure auto` does (white and black of both
 // projectors at the first view, at 1/8 .. 16 x the reference; core::choose_exposures with the
 // decoder's floors) and scans with the exposure or bracket it picks.
+// --interreflection SAMPLES turns on the rig's one-bounce term (docs/virtual-rig.md; SAMPLES rays
+// per pixel, e.g. 16 or 64: minutes per view at full resolution); --fringe-period-px P scans with
+// fringes of P projector pixels instead of the preset's 8 (docs/hdr.md, "Interreflection").
 //
 // Frames reach the reconstructor at a camera's pace: one every P ms (default 8.333, a DLP4500's
 // 8-bit pattern period), and between views the turntable's move (60 deg at S = 360 deg/s plus
@@ -293,6 +297,8 @@ struct Exposing {
   std::vector<double> bracket{1.0};
   bool automatic = false;
   std::optional<slrig::Material> material;
+  int interreflection_samples = 0;  // 0: the one-bounce term off
+  int fringe_period_px = 0;         // 0: the preset's
 };
 
 // The metering pass of `slscan scan --exposure auto` on the rendered scene: the bracket as
@@ -347,6 +353,9 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   scene_or->sensor.noise = noise;
   if (exposing.material)
     for (slrig::SceneObject& object : scene_or->objects) slrig::apply_material(object, *exposing.material);
+  scene_or->interreflection = exposing.interreflection_samples > 0;
+  if (scene_or->interreflection) scene_or->interreflection_samples = exposing.interreflection_samples;
+  if (exposing.fringe_period_px > 0) scene_or->pattern_plan.period_px = exposing.fringe_period_px;
   const slrig::Scene scene = *scene_or;
   Json auto_exposure;
   if (exposing.automatic) {
@@ -456,6 +465,8 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   out["scene"] = name;
   out["size"] = std::to_string(width) + " x " + std::to_string(height);
   if (exposing.automatic) out["auto_exposure"] = auto_exposure;
+  out["fringe_period_px"] = scene.pattern_plan.period_px;
+  out["interreflection_samples"] = exposing.interreflection_samples;
   Json view_reports = Json::array();
   double filled_area_total = 0;
   for (std::size_t v = 0; v < result.views.size(); ++v) {
@@ -672,6 +683,14 @@ int main(int argc, char** argv) try {
         auto material = slrig::parse_material(value());
         if (!material) throw std::invalid_argument("--material: " + material.error().message);
         exposing.material = *material;
+      } else if (arg == "--interreflection") {
+        exposing.interreflection_samples = std::stoi(value());
+        if (exposing.interreflection_samples < 1 || exposing.interreflection_samples > 1024)
+          throw std::invalid_argument("--interreflection: 1 to 1024 rays per pixel");
+      } else if (arg == "--fringe-period-px") {
+        exposing.fringe_period_px = std::stoi(value());
+        if (exposing.fringe_period_px < 2 || exposing.fringe_period_px > 1140)
+          throw std::invalid_argument("--fringe-period-px: 2 to 1140 projector pixels");
       } else if (arg == "--prerender") {
         pacing.prerender = true;
       } else if (arg == "--turntable-deg-per-s") {
@@ -684,7 +703,7 @@ int main(int argc, char** argv) try {
                      "[--no-registration] "
                      "[--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE] [--outliers CSV] "
                      "[--frame-period-ms P] [--turntable-deg-per-s S] [--prerender] [--exposure-bracket F,F,...] "
-                     "[--exposure-auto] [--material NAME]\n");
+                     "[--exposure-auto] [--material NAME] [--interreflection SAMPLES] [--fringe-period-px P]\n");
         return 2;
       }
     } catch (const std::exception& e) {

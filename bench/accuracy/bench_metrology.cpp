@@ -67,6 +67,9 @@ Eigen::Isometry3d to_isometry(const slproto::RigidTransform& t) {
 bool g_smooth_depth = true;
 bool g_select_views = true;
 int g_quadratic_radius = slscan::core::DecodeOptions{}.quadratic_radius;
+// --fringe-period-px P: the scans' fringe period instead of the preset's 8 (slscan scan
+// --fringe-period-px; docs/hdr.md, "Interreflection"); 0: the preset's.
+int g_fringe_period_px = 0;
 
 struct Scan {
   std::vector<Eigen::Vector3f> model;  // the fused model in the rig's table frame
@@ -98,7 +101,7 @@ Scan scan(const slrig::Scene& scene, const slproto::RigCalibration& calibration)
     frame.resize(renderer.frame_bytes());
     for (int side = 0; side < 2; ++side)
       for (std::size_t p = 0; p < plan.size(); ++p) {
-        renderer.render(static_cast<slproto::ProjectorSide>(side), p, frame);
+        renderer.render(static_cast<slproto::ProjectorSide>(side), plan, p, frame);
         slscan::core::FrameInfo info;
         info.view_index = static_cast<int>(view);
         info.commanded_angle_deg = info.reported_angle_deg = angle;
@@ -314,10 +317,17 @@ int main(int argc, char** argv) try {
       g_select_views = false;
     } else if (arg == "--decode-quadratic-radius" && i + 1 < argc) {
       g_quadratic_radius = std::stoi(argv[++i]);
+    } else if (arg == "--fringe-period-px" && i + 1 < argc) {
+      g_fringe_period_px = std::stoi(argv[++i]);
+      if (g_fringe_period_px < 2 || g_fringe_period_px > 1140 || g_fringe_period_px % 2 != 0) {
+        std::fprintf(stderr, "bench_metrology: --fringe-period-px takes an even period in [2, 1140]\n");
+        return 2;
+      }
     } else {
       std::fprintf(stderr,
                    "usage: bench_metrology [--size small|full] [--out FILE.md] [--true-calibration] [--skip-bar] "
-                   "[--no-depth-smoothing] [--no-view-selection] [--decode-quadratic-radius Q]\n");
+                   "[--no-depth-smoothing] [--no-view-selection] [--decode-quadratic-radius Q] "
+                   "[--fringe-period-px P]\n");
       return 2;
     }
   }
@@ -346,6 +356,10 @@ int main(int argc, char** argv) try {
       calibration.pattern_plan = ballbar.pattern_plan;
       calibration_line =
           fmt("the ESTIMATED calibration (rendered calibration capture, calibrated in %.0f s)", seconds_since(t0));
+    }
+    if (g_fringe_period_px > 0) {
+      calibration.pattern_plan.period_px = g_fringe_period_px;
+      calibration_line += fmt(", fringe period %d px", g_fringe_period_px);
     }
     std::printf("using %s\n", calibration_line.c_str());
   }

@@ -64,6 +64,7 @@ int run_demo(const DemoCommand& command, const Console& console) {
   scan.exposure_bracket_us = command.exposure_bracket_us;
   scan.exposure_mode = command.exposure_mode;
   scan.auto_exposure = command.auto_exposure;
+  scan.fringe_period_px = command.fringe_period_px;
   scan.pattern_period_us = 5000;
   scan.settle_ms = 50;
   if (command.scene == "ballbar") scan.measure_ball_bar = true;

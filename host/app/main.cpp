@@ -153,6 +153,15 @@ void add_auto_exposure_options(CLI::App& command, std::string& mode, slscan::ses
       ->needs(exposure);
 }
 
+// scan / verify / demo: the fringe period (docs/hdr.md, "Interreflection").
+void add_fringe_period_option(CLI::App& command, int& period_px) {
+  command
+      .add_option("--fringe-period-px", period_px,
+                  "Fringe period of the scan's patterns, projector pixels (default: the calibration's plan's, 8); "
+                  "4 resists light bouncing inside concave or glossy parts")
+      ->check(CLI::Range(2, 16384));
+}
+
 // scan / verify: the scanner, the calibration, the output folder and the scan plan.
 void add_scan_options(CLI::App& command, ScanCommand& scan, std::string& connect) {
   command.add_option("--connect", connect, "Scanner address HOST:PORT")->capture_default_str();
@@ -170,6 +179,7 @@ void add_scan_options(CLI::App& command, ScanCommand& scan, std::string& connect
       ->delimiter(',')
       ->check(CLI::Range(1u, 1'000'000u));
   add_auto_exposure_options(command, scan.exposure_mode, scan.auto_exposure);
+  add_fringe_period_option(command, scan.fringe_period_px);
   command.add_option("--period-us", scan.pattern_period_us, "Pattern period (default: the board's)");
   command.add_option("--settle-ms", scan.settle_ms, "Turntable settle time")->capture_default_str();
   command
@@ -579,6 +589,7 @@ static int run_command_line(int argc, char** argv) {
       ->delimiter(',')
       ->check(CLI::Range(1u, 1'000'000u));
   add_auto_exposure_options(*demo_cmd, demo.exposure_mode, demo.auto_exposure);
+  add_fringe_period_option(*demo_cmd, demo.fringe_period_px);
   demo_cmd->add_flag("--overwrite", demo.overwrite,
                      "Replace the capture of an earlier demo in --out (without it, such a folder is refused)");
 

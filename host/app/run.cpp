@@ -23,6 +23,7 @@
 #include "slproto/calibration.hpp"
 #include "slproto/handshake.hpp"
 #include "slproto/number_text.hpp"
+#include "slproto/pattern_plan.hpp"
 #include "slproto/zstd_codec.hpp"
 #include "slscan/core/measure.hpp"
 #include "slscan/io/capture_replay.hpp"
@@ -507,7 +508,13 @@ int run_scan(const ScanCommand& command, const Console& console) {
   if (const std::string capture = capture_in(command.output_dir); !capture.empty() && !command.overwrite)
     return refuse_to_overwrite("scan", capture);
   const core::ReconstructionOptions options = options_from(command.config_path, command.mesh);
-  const slproto::RigCalibration calibration = load_calibration_or_throw(command.calibration_path);
+  slproto::RigCalibration calibration = load_calibration_or_throw(command.calibration_path);
+  if (command.fringe_period_px != 0) {
+    // The calibration maps projector coordinates, whatever period coded them: it holds.
+    calibration.pattern_plan.period_px = command.fringe_period_px;
+    if (auto plan = slproto::PatternPlan::make(calibration.pattern_plan); !plan)
+      throw UsageError("--fringe-period-px " + std::to_string(command.fringe_period_px) + ": " + plan.error().message);
+  }
   prepare_output_folder(command.output_dir, "scan --out", true);
   session::LiveScanRequest request;
   request.scanner = {command.host, command.port, read_token_file(command.token_file)};

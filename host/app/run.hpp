@@ -119,8 +119,11 @@ struct ScanCommand {
   std::uint32_t exposure_us = 0;                   // 0: the board's [timing] pattern_exposure_us
   std::vector<std::uint32_t> exposure_bracket_us;  // HDR (docs/hdr.md); empty: exposure_us alone
   std::string exposure_mode = "fixed";             // "auto": metered first (docs/hdr.md, "Auto-exposure")
-  session::AutoExposureRequest auto_exposure;      // its limits, used with "auto"
-  std::uint32_t pattern_period_us = 0;             // 0: the board's pattern_period_us
+  // The fringe period of the scan's plan, projector pixels (0: the calibration's plan's); a
+  // shorter one resists light bouncing inside the part (docs/hdr.md, "Interreflection").
+  int fringe_period_px = 0;
+  session::AutoExposureRequest auto_exposure;  // its limits, used with "auto"
+  std::uint32_t pattern_period_us = 0;         // 0: the board's pattern_period_us
   std::uint32_t settle_ms = 200;
   std::uint32_t stall_timeout_s = 60;  // no frame for this long: the scan fails
   std::string token_file;              // shared secret for boards that listen on a network
@@ -195,6 +198,7 @@ struct DemoCommand {
   std::vector<std::uint32_t> exposure_bracket_us;
   std::string exposure_mode = "fixed";  // "auto": metered first
   session::AutoExposureRequest auto_exposure;
+  int fringe_period_px = 0;  // ScanCommand
 };
 int run_demo(const DemoCommand& command, const Console& console);
 

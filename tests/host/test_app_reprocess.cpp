@@ -339,9 +339,10 @@ TEST_F(Reprocess, CorruptCaptureAndWrongCalibrationAreRefusedClearly) {
   }
   EXPECT_FALSE(fs::exists(dir_ / "bad" / "model.ply"));
 
-  // A calibration made for another pattern plan.
+  // A calibration made for another pattern plan (not only another fringe period, which the
+  // calibration holds for: slscan scan --fringe-period-px).
   slproto::RigCalibration other = slrig::ground_truth_calibration(*scene_);
-  other.pattern_plan.period_px = 16;
+  other.pattern_plan.phase_steps = 4;
   ASSERT_TRUE(slproto::save_calibration((dir_ / "other.json").string(), other).ok());
   ReprocessRequest r = request((dir_ / "scan.slcap").string(), "other");
   r.calibration_path = (dir_ / "other.json").string();
@@ -351,9 +352,9 @@ TEST_F(Reprocess, CorruptCaptureAndWrongCalibrationAreRefusedClearly) {
   } catch (const io::IoError& e) {
     EXPECT_NE(std::string(e.what()).find("pattern plan"), std::string::npos) << e.what();
     // Names what differs, with both values, not only both plans.
-    EXPECT_NE(std::string(e.what()).find("period_px 8 in the capture, 16 in the calibration"), std::string::npos)
+    EXPECT_NE(std::string(e.what()).find("phase_steps 8 in the capture, 4 in the calibration"), std::string::npos)
         << e.what();
-    EXPECT_EQ(std::string(e.what()).find("phase_steps"), std::string::npos) << e.what();
+    EXPECT_EQ(std::string(e.what()).find("period_px"), std::string::npos) << e.what();
   }
   EXPECT_FALSE(fs::exists(dir_ / "other" / "model.ply"));
 }

@@ -16,10 +16,14 @@ StreamReconstruction::StreamReconstruction(const slproto::RigCalibration& calibr
     : calibration_(calibration), options_(options) {}
 
 void StreamReconstruction::set_plan(const slproto::PatternPlan& plan) {
-  if (!(plan.config() == calibration_.pattern_plan))
+  // The fringe period may differ (slscan scan --fringe-period-px): the calibration maps
+  // projector coordinates, whatever period coded them. The rest must be the calibration's.
+  slproto::PatternPlanConfig calibrated = calibration_.pattern_plan;
+  calibrated.period_px = plan.config().period_px;
+  if (!(plan.config() == calibrated))
     throw io::IoError("the capture's pattern plan differs from the plan the calibration was made with: " +
-                      plan_differences(plan.config(), calibration_.pattern_plan) + " (capture " +
-                      describe_plan(plan.config()) + ", calibration " + describe_plan(calibration_.pattern_plan) + ")");
+                      plan_differences(plan.config(), calibrated) + " (capture " + describe_plan(plan.config()) +
+                      ", calibration " + describe_plan(calibration_.pattern_plan) + ")");
   plan_ = plan;
 }
 
