@@ -2,7 +2,8 @@
 // accuracy section), through ScanReconstructor: the code path of a scan.
 //
 //   bench_accuracy [--size full|small] [--scenes ballbar,blade,teacup] [--views N] [--mesh]
-//                  [--no-noise] [--no-registration] [--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE]
+//                  [--no-noise] [--no-registration] [--registration-mode M] [--decode-smoothing R]
+//                  [--decode-quadratic-radius Q] [--json FILE]
 //                  [--outliers CSV] [--frame-period-ms P] [--turntable-deg-per-s S] [--prerender]
 //                  [--exposure-bracket F,F,... | --exposure-auto] [--material NAME]
 //                  [--interreflection SAMPLES] [--fringe-period-px P]
@@ -346,8 +347,8 @@ std::vector<double> meter_scene(const slrig::Scene& scene, const slscan::core::D
 }
 
 Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool mesh, bool noise, int decode_smoothing,
-               int quadratic_radius, bool registration, std::FILE* outliers_csv, const Pacing& pacing,
-               Exposing exposing) {
+               int quadratic_radius, bool registration, slscan::core::RefinementMode registration_mode,
+               std::FILE* outliers_csv, const Pacing& pacing, Exposing exposing) {
   auto scene_or = slrig::scene_preset(name, size);
   if (!scene_or) throw std::runtime_error(scene_or.error().message);
   scene_or->sensor.noise = noise;
@@ -379,6 +380,7 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
   if (decode_smoothing >= 0) options.decode.smoothing_radius = decode_smoothing;
   if (quadratic_radius >= 0) options.decode.quadratic_radius = quadratic_radius;
   options.register_views = registration;
+  options.registration.mode = registration_mode;
   options.keep_projector_clouds = true;
   options.build_mesh = mesh;
   const int width = scene.camera.width, height = scene.camera.height;
@@ -543,6 +545,11 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
     max_correction_deg = std::max(max_correction_deg, r.correction_deg);
     max_correction_mm = std::max(max_correction_mm, r.correction_mm);
   }
+  Json angle_corrections = Json::array();
+  for (const auto& r : result.registration.views) angle_corrections.push_back(r.angle_correction_deg);
+  model_json["registration_angle_corrections_deg"] = angle_corrections;
+  model_json["registration_axis_tilt_deg"] = result.registration.axis_tilt_deg;
+  model_json["registration_axis_shift_mm"] = result.registration.axis_shift_mm;
   model_json["max_registration_correction_deg"] = max_correction_deg;
   model_json["max_registration_correction_mm"] = max_correction_mm;
   if (!truth_points.empty() && !model.empty()) {
@@ -631,6 +638,7 @@ int main(int argc, char** argv) try {
   std::vector<std::string> scenes{"ballbar", "blade", "teacup"};
   int max_views = 6;
   bool mesh = false, noise = true, registration = true;
+  auto registration_mode = slscan::core::RefinementMode::turntable;
   int decode_smoothing = -1, quadratic_radius = -1;  // -1: the decoder's defaults
   Pacing pacing;
   Exposing exposing;
@@ -655,6 +663,16 @@ int main(int argc, char** argv) try {
         noise = false;
       } else if (arg == "--no-registration") {
         registration = false;
+      } else if (arg == "--registration-mode") {
+        const std::string mode = value();
+        if (mode == "turntable")
+          registration_mode = slscan::core::RefinementMode::turntable;
+        else if (mode == "joint")
+          registration_mode = slscan::core::RefinementMode::joint;
+        else if (mode == "sequential")
+          registration_mode = slscan::core::RefinementMode::sequential;
+        else
+          throw std::invalid_argument("--registration-mode: turntable, joint or sequential, not '" + mode + "'");
       } else if (arg == "--decode-smoothing") {
         decode_smoothing = std::stoi(value());
       } else if (arg == "--decode-quadratic-radius") {
@@ -700,7 +718,7 @@ int main(int argc, char** argv) try {
       } else {
         std::fprintf(stderr,
                      "usage: bench_accuracy [--size full|small] [--scenes a,b] [--views N] [--mesh] [--no-noise] "
-                     "[--no-registration] "
+                     "[--no-registration] [--registration-mode turntable|joint|sequential] "
                      "[--decode-smoothing R] [--decode-quadratic-radius Q] [--json FILE] [--outliers CSV] "
                      "[--frame-period-ms P] [--turntable-deg-per-s S] [--prerender] [--exposure-bracket F,F,...] "
                      "[--exposure-auto] [--material NAME] [--interreflection SAMPLES] [--fringe-period-px P]\n");
@@ -731,7 +749,7 @@ int main(int argc, char** argv) try {
   for (const auto& name : scenes) {
     try {
       Json scene = run_scene(name, size, max_views, mesh, noise, decode_smoothing, quadratic_radius, registration,
-                             outliers, pacing, exposing);
+                             registration_mode, outliers, pacing, exposing);
       std::printf("%s\n", scene.dump(1).c_str());
       std::fflush(stdout);
       report.push_back(std::move(scene));

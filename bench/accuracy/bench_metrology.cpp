@@ -7,6 +7,7 @@
 //  - the blade and the teacup: the fused model against the true surface, and its coverage.
 // Run: build/<preset>/bench/accuracy/bench_metrology [--size small|full] [--out FILE.md]
 //        [--true-calibration] [--skip-bar] [--no-depth-smoothing] [--no-view-selection]
+//        [--registration-mode turntable|joint|sequential]
 //   small (640 x 512): a few minutes of CPU. full (2464 x 2056): the calibration alone takes
 //   ~4 min and ~9 GB; the eleven scans ~10 min more on 2 cores.
 #include <sys/resource.h>
@@ -36,6 +37,7 @@
 #include "slscan/core/measure.hpp"
 #include "slscan/core/metrology.hpp"
 #include "slscan/core/point_index.hpp"
+#include "slscan/core/registration.hpp"
 #include "slscan/core/scan_reconstruction.hpp"
 #include "slscan/virtual_rig/virtual_calibration.hpp"
 
@@ -70,6 +72,8 @@ int g_quadratic_radius = slscan::core::DecodeOptions{}.quadratic_radius;
 // --fringe-period-px P: the scans' fringe period instead of the preset's 8 (slscan scan
 // --fringe-period-px; docs/hdr.md, "Interreflection"); 0: the preset's.
 int g_fringe_period_px = 0;
+// --registration-mode turntable|joint|sequential: RegistrationOptions::mode (default turntable).
+auto g_registration_mode = slscan::core::RefinementMode::turntable;
 
 struct Scan {
   std::vector<Eigen::Vector3f> model;  // the fused model in the rig's table frame
@@ -89,6 +93,7 @@ Scan scan(const slrig::Scene& scene, const slproto::RigCalibration& calibration)
   options.smooth_depth = g_smooth_depth;
   options.select_best_views = g_select_views;
   options.decode.quadratic_radius = g_quadratic_radius;
+  options.registration.mode = g_registration_mode;
   const int width = scene.camera.width, height = scene.camera.height;
   slscan::core::ScanReconstructor reconstructor(calibration, plan, width, height, options);
   std::vector<std::uint8_t> frame;
@@ -323,11 +328,23 @@ int main(int argc, char** argv) try {
         std::fprintf(stderr, "bench_metrology: --fringe-period-px takes an even period in [2, 1140]\n");
         return 2;
       }
+    } else if (arg == "--registration-mode" && i + 1 < argc) {
+      const std::string_view mode = argv[++i];
+      if (mode == "turntable") {
+        g_registration_mode = slscan::core::RefinementMode::turntable;
+      } else if (mode == "joint") {
+        g_registration_mode = slscan::core::RefinementMode::joint;
+      } else if (mode == "sequential") {
+        g_registration_mode = slscan::core::RefinementMode::sequential;
+      } else {
+        std::fprintf(stderr, "bench_metrology: --registration-mode takes turntable, joint or sequential\n");
+        return 2;
+      }
     } else {
       std::fprintf(stderr,
                    "usage: bench_metrology [--size small|full] [--out FILE.md] [--true-calibration] [--skip-bar] "
                    "[--no-depth-smoothing] [--no-view-selection] [--decode-quadratic-radius Q] "
-                   "[--fringe-period-px P]\n");
+                   "[--fringe-period-px P] [--registration-mode turntable|joint|sequential]\n");
       return 2;
     }
   }
@@ -377,7 +394,12 @@ int main(int argc, char** argv) try {
      << ", default noise model, docs/virtual-rig.md), scanned with " << calibration_line
      << "; 6 views x 2 projectors per scan, default reconstruction options. Command: `bench_metrology --size "
      << size_name << (true_calibration ? " --true-calibration" : "") << (g_smooth_depth ? "" : " --no-depth-smoothing")
-     << (g_select_views ? "" : " --no-view-selection") << "`.\n\n";
+     << (g_select_views ? "" : " --no-view-selection")
+     << (g_registration_mode == slscan::core::RefinementMode::turntable
+             ? ""
+             : (g_registration_mode == slscan::core::RefinementMode::joint ? " --registration-mode joint"
+                                                                           : " --registration-mode sequential"))
+     << "`.\n\n";
 
   // 2. The ball bar at 7 positions and poses.
   std::vector<double> lengths;

@@ -5,6 +5,7 @@
 
 #include "slproto/file_util.hpp"
 #include "slproto/json_fields.hpp"
+#include "slscan/core/registration.hpp"
 #include "slscan/io/io_error.hpp"
 
 namespace slscan::app {
@@ -62,7 +63,7 @@ void apply_sections(const json& config, core::ReconstructionOptions& o) {
       .read("max_height_mm", o.turntable_denoise.max_height_mm)
       .read("radius_mm", o.turntable_denoise.radius_mm)
       .finish();
-  std::string mode = o.registration.mode == core::RefinementMode::joint ? "joint" : "sequential";
+  std::string mode = core::refinement_mode_name(o.registration.mode);
   Section(top, "registration")
       .read("enabled", o.register_views)
       .read("mode", mode)
@@ -87,12 +88,15 @@ void apply_sections(const json& config, core::ReconstructionOptions& o) {
                                     " is out of range (allowed above 0, at most 10000 mm)");
     }
   }
-  if (mode == "joint")
+  if (mode == "turntable")
+    o.registration.mode = core::RefinementMode::turntable;
+  else if (mode == "joint")
     o.registration.mode = core::RefinementMode::joint;
   else if (mode == "sequential")
     o.registration.mode = core::RefinementMode::sequential;
   else
-    throw std::invalid_argument("config: registration.mode must be \"joint\" or \"sequential\", not \"" + mode + "\"");
+    throw std::invalid_argument("config: registration.mode must be \"turntable\", \"joint\" or \"sequential\", not \"" +
+                                mode + "\"");
   Section(top, "outliers")
       .read("enabled", o.remove_outliers)
       .read("k", o.outliers.k)
@@ -202,7 +206,7 @@ json config_to_json(const core::ReconstructionOptions& o) {
         {"radius_mm", o.turntable_denoise.radius_mm}}},
       {"registration",
        {{"enabled", o.register_views},
-        {"mode", o.registration.mode == core::RefinementMode::joint ? "joint" : "sequential"},
+        {"mode", core::refinement_mode_name(o.registration.mode)},
         {"gates_mm", o.registration.icp.gates_mm},
         {"max_normal_angle_deg", o.registration.icp.max_normal_angle_deg},
         {"source_points_per_view", o.registration.icp.source_points_per_view},

@@ -12,6 +12,7 @@
 #include <utility>
 
 #include "report_html.hpp"
+#include "slscan/core/registration.hpp"
 #include "slscan/io/mesh_file.hpp"
 #include "slscan/io/ply.hpp"
 #include "slscan/io/stl.hpp"
@@ -332,6 +333,7 @@ json scan_result_to_json(const core::ScanResult& result) {
       per_view.push_back({{"view", result.views[i].view_index},  // the capture's view number
                           {"correction_deg", r.correction_deg},
                           {"correction_mm", r.correction_mm},
+                          {"angle_correction_deg", r.angle_correction_deg},
                           {"residual_rms_mm", r.residual_rms_mm},
                           {"correspondences", r.correspondences},
                           {"table_from_view", isometry_json(r.table_from_view)}});
@@ -346,6 +348,11 @@ json scan_result_to_json(const core::ScanResult& result) {
     registration["views"] = per_view;
     registration["pairs"] = pairs;
     registration["iterations"] = result.registration.iterations;
+    registration["mode"] = core::refinement_mode_name(result.registration.mode);
+    if (result.registration.mode == core::RefinementMode::turntable) {
+      registration["axis_tilt_deg"] = result.registration.axis_tilt_deg;
+      registration["axis_shift_mm"] = result.registration.axis_shift_mm;
+    }
   }
   json flagged = json::array();
   for (const auto& line : self_check_findings(result)) flagged.push_back(line);

@@ -2,11 +2,16 @@
 
 #include <algorithm>
 #include <bit>
+#include <charconv>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <map>
+#include <optional>
 #include <stdexcept>
+#include <string_view>
+#include <system_error>
+#include <utility>
 
 namespace slscan::app {
 
@@ -95,9 +100,12 @@ const json& at(const json& root, std::initializer_list<std::string_view> path) {
 
 struct Table {
   std::string html = "<table>";
-  explicit Table(std::initializer_list<std::string_view> headers) {
+  explicit Table(std::initializer_list<std::string_view> headers) { head(headers); }
+  explicit Table(const std::vector<std::string>& headers) { head(headers); }
+  template <class Headers>
+  void head(const Headers& headers) {
     html += "<thead><tr>";
-    for (auto h : headers) html += "<th>" + std::string(h) + "</th>";
+    for (const auto& h : headers) html += "<th>" + std::string(h) + "</th>";
     html += "</tr></thead><tbody>";
   }
   void row(const std::vector<std::string>& cells) {
@@ -110,7 +118,8 @@ struct Table {
 
 std::string key_value_table(const std::vector<std::pair<std::string, std::string>>& rows) {
   std::string html = "<table class=\"kv\"><tbody>";
-  for (const auto& [key, value] : rows) html += "<tr><th>" + key + "</th><td>" + value + "</td></tr>";
+  for (const auto& [key, value] : rows)
+    html.append("<tr><th>").append(key).append("</th><td>").append(value).append("</td></tr>");
   return html + "</tbody></table>\n";
 }
 
@@ -241,11 +250,23 @@ std::string registration_section(const json& report) {
     if (reg.contains("error")) html += ": " + cell(reg["error"]);
     return html + ". The views are placed by the turntable angles alone.</p></section>\n";
   }
-  html += "<p>" + cell(reg["iterations"]) + " iterations.</p>\n";
-  Table views({"view", "correction (&deg;)", "correction (mm)", "residual RMS (mm)", "correspondences"});
-  for (const auto& v : reg["views"])
-    views.row({cell(v["view"]), cell(v["correction_deg"], 4), cell(v["correction_mm"], 4),
-               cell(v["residual_rms_mm"], 4), cell(v["correspondences"])});
+  const bool turntable = reg.contains("axis_tilt_deg");
+  html += "<p>" + cell(reg["iterations"]) + " iterations";
+  if (reg.contains("mode")) html += ", mode " + cell(reg["mode"]);
+  if (turntable)
+    html += ": one rotation axis for every view, moved " + cell(reg["axis_tilt_deg"], 4) + "&deg; and " +
+            cell(reg["axis_shift_mm"], 4) + " mm from the calibrated one, and one angle correction per view";
+  html += ".</p>\n";
+  std::vector<std::string> columns{"view", "correction (&deg;)", "correction (mm)"};
+  if (turntable) columns.emplace_back("angle correction (&deg;)");
+  columns.insert(columns.end(), {"residual RMS (mm)", "correspondences"});
+  Table views(columns);
+  for (const auto& v : reg["views"]) {
+    std::vector<std::string> row{cell(v["view"]), cell(v["correction_deg"], 4), cell(v["correction_mm"], 4)};
+    if (turntable) row.push_back(cell(v["angle_correction_deg"], 4));
+    row.insert(row.end(), {cell(v["residual_rms_mm"], 4), cell(v["correspondences"])});
+    views.row(row);
+  }
   html += views.done();
   Table pairs({"views", "RMS (mm)", "correspondences"});
   for (const auto& p : reg["pairs"])
@@ -287,16 +308,28 @@ std::string timings_section(const json& report) {
   return html + "</section>\n";
 }
 
+// "view_<i>_<kind>.png" -> (i, kind); nothing for any other name.
+std::optional<std::pair<int, std::string>> view_picture(const std::string& name) {
+  constexpr std::string_view prefix = "view_";
+  if (name.rfind(prefix, 0) != 0) return std::nullopt;
+  const char* end = name.data() + name.size();
+  int index = 0;
+  auto [rest, error] = std::from_chars(name.data() + prefix.size(), end, index);
+  if (error != std::errc{} || rest == end || *rest != '_') return std::nullopt;
+  std::string kind;
+  for (++rest; rest != end && ((*rest >= 'a' && *rest <= 'z') || *rest == '_'); ++rest) kind += *rest;
+  if (kind.empty()) return std::nullopt;
+  return std::pair{index, kind};
+}
+
 std::string pictures_section(const std::vector<std::string>& pictures) {
   // Group pictures/view_<i>_<kind>.png by view; everything else is a model preview.
   std::vector<std::string> previews;
   std::map<int, std::map<std::string, std::string>> views;
   for (const auto& path : pictures) {
     const std::string name = path.substr(path.find_last_of('/') + 1);
-    int index = 0;
-    char kind[64] = {};
-    if (std::sscanf(name.c_str(), "view_%d_%63[a-z_]", &index, kind) == 2) {
-      views[index][kind] = path;
+    if (const auto view = view_picture(name)) {
+      views[view->first][view->second] = path;
     } else {
       previews.push_back(path);
     }

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "config.hpp"
+#include "slscan/core/registration.hpp"
 #include "slscan/io/io_error.hpp"
 
 namespace slscan::app {
@@ -14,6 +15,21 @@ using nlohmann::json;
 
 TEST(AppConfig, AppliesValuesAndRoundTrips) {
   core::ReconstructionOptions options;
+  EXPECT_EQ(options.registration.mode, core::RefinementMode::turntable);  // the default
+  EXPECT_EQ(config_to_json(options)["registration"]["mode"], "turntable");
+  for (const auto mode : {core::RefinementMode::joint, core::RefinementMode::turntable}) {
+    core::ReconstructionOptions chosen;
+    apply_config(json::parse(std::string(R"({"registration": {"mode": ")") + core::refinement_mode_name(mode) + "\"}}"),
+                 chosen);
+    EXPECT_EQ(chosen.registration.mode, mode);
+  }
+  try {
+    apply_config(json::parse(R"({"registration": {"mode": "free"}})"), options);
+    FAIL() << "an unknown registration mode was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("\"turntable\", \"joint\" or \"sequential\", not \"free\""), std::string::npos)
+        << e.what();
+  }
   apply_config(json::parse(R"({"fusion": {"agreement_mm": 0.35}, "registration": {"mode": "sequential",
       "gates_mm": [1.0, 0.3], "turntable_prior_deg": 0.2}, "mesh": {"enabled": false}, "model": {"voxel_mm": 0.2}})"),
                options);

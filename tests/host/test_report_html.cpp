@@ -90,10 +90,14 @@ json sample_report() {
         {"registration",
          {{"applied", true},
           {"iterations", 4},
+          {"mode", "turntable"},
+          {"axis_tilt_deg", 0.0021},
+          {"axis_shift_mm", 0.0034},
           {"views",
            {{{"view", 0},
              {"correction_deg", 0.0},
              {"correction_mm", 0.0},
+             {"angle_correction_deg", 0.0},
              {"residual_rms_mm", 0.0123},
              {"correspondences", 812}}}},
           {"pairs", json::array()}}},
@@ -148,6 +152,10 @@ TEST(ReportHtml, PageCarriesTheFiguresEscaped) {
         "+0.4 &micro;m <span class=\"note\">(no MPE given)", "40 points in 22.5&deg;",
         "points within 0.50 mm of the robust fit", "900 (2)"})
     EXPECT_NE(html.find(figure), std::string::npos) << figure;
+  // Registration says what the turntable mode found: how far the axis moved, each view's angle.
+  for (const char* text : {"mode turntable", "moved 0.0021&deg; and 0.0034 mm from the calibrated one",
+                           "<th>angle correction (&deg;)</th>"})
+    EXPECT_NE(html.find(text), std::string::npos) << text;
   EXPECT_EQ(html.find("form error"), std::string::npos);
   EXPECT_EQ(html.find("<b>scan</b>"), std::string::npos) << "a file name went into the page unescaped";
   EXPECT_NE(html.find("&lt;b&gt;scan&lt;/b&gt;.slcap"), std::string::npos);

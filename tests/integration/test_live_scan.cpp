@@ -298,7 +298,14 @@ TEST_F(LiveScan, ReportHoldsCountsResidualsAndTimings) {
   const json& reg = scan["registration"];
   ASSERT_TRUE(reg["applied"].get<bool>()) << reg.dump();
   ASSERT_EQ(reg["views"].size(), views);
+  // The default mode: one axis for every view, moved only as far as the estimated calibration
+  // was off, and one angle correction per view (the rig's angles are exact; view 0 is the zero).
+  EXPECT_EQ(reg["mode"], "turntable");
+  EXPECT_LT(reg["axis_tilt_deg"].get<double>(), 0.05) << reg.dump();
+  EXPECT_LT(reg["axis_shift_mm"].get<double>(), 0.1) << reg.dump();
+  EXPECT_EQ(reg["views"][0]["angle_correction_deg"].get<double>(), 0.0);
   for (const auto& v : reg["views"]) {
+    EXPECT_LT(std::abs(v["angle_correction_deg"].get<double>()), 0.1) << reg.dump();
     // Estimated calibration and exact turntable angles: ICP has little to correct and the
     // residual is the small rig's surface noise (~10 um).
     EXPECT_GT(v["residual_rms_mm"].get<double>(), 0.0);

@@ -17,6 +17,7 @@
 
 #include "slproto/number_text.hpp"
 #include "slscan/core/detail/nearest_tree.hpp"
+#include "turntable_poses.hpp"
 
 namespace slscan::core {
 namespace {
@@ -213,6 +214,7 @@ class JointIcp {
         for (int y = 0; y < 2; ++y) H.block<6, 6>(6 * blocks[x], 6 * blocks[y]) += h.block<6, 6>(6 * x, 6 * y);
       for (int x = 0; x < 2; ++x) g.segment<6>(6 * blocks[x]) += gg.segment<6>(6 * x);
     }
+    if (turntable_ != nullptr) return turntable_step(H, g, sum2, total, tolerance_deg, tolerance_mm, rms);
     double prior_cost = 0;  // in the residuals' units: what the prior adds to sum2
     // Fixed poses take no part in the solve.
     for (int v = 0; v < n; ++v) {
@@ -271,6 +273,53 @@ class JointIcp {
     return converged;
   }
 
+  // step() in the turntable's parameters: the poses' normal equations H, g (6 per view) taken
+  // through d(pose) / d(params), the prior on each parameter (the axis' tilt and every angle
+  // correction at prior_deg, its shift at prior_mm, weighed as in step()).
+  bool turntable_step(const Eigen::MatrixXd& H, const Eigen::VectorXd& g, double sum2, std::size_t total,
+                      double tolerance_deg, double tolerance_mm, double& rms) {
+    const Eigen::MatrixXd J = turntable_->jacobian();
+    Eigen::MatrixXd Hp = J.transpose() * H * J;
+    Eigen::VectorXd gp = J.transpose() * g;
+    double prior_cost = 0;
+    if (prior_rad_ > 0 && prior_mm_ > 0 && total > 0) {
+      const double residual_var = std::max(sum2 / static_cast<double>(total), 1e-8);
+      const Eigen::VectorXd& p = turntable_->params();
+      for (Eigen::Index k = 0; k < p.size(); ++k) {
+        const bool shift = k == 2 || k == 3;
+        const double w = residual_var / (shift ? prior_mm_ * prior_mm_ : prior_rad_ * prior_rad_);
+        Hp(k, k) += w;
+        gp[k] += w * p[k];
+        prior_cost += w * p[k] * p[k];
+      }
+    }
+    rms = total > 0 ? std::sqrt((sum2 + prior_cost) / static_cast<double>(total)) : 0.0;
+    Hp.diagonal().array() += 1e-12 * std::max(1.0, Hp.diagonal().maxCoeff());
+    const Eigen::VectorXd delta = Hp.ldlt().solve(-gp);
+    if (!delta.allFinite()) throw std::runtime_error("ICP: the normal equations are singular");
+    turntable_->update(delta);
+    const std::vector<Eigen::Isometry3d> updated = turntable_->poses();
+    bool converged = true;
+    for (std::size_t v = 0; v < poses_.size(); ++v) {
+      const Eigen::Isometry3d change = updated[v] * poses_[v].inverse();
+      if (Eigen::AngleAxisd(change.linear()).angle() * kDegPerRad > tolerance_deg ||
+          change.translation().norm() > tolerance_mm)
+        converged = false;
+      poses_[v] = updated[v];
+    }
+    return converged;
+  }
+
+ public:
+  // Poses from the turntable's parameters instead of 6 free ones per view (`model` outlives the
+  // adjustment; its poses are written into `poses` as they change).
+  void use_turntable(detail::TurntablePoses* model) {
+    turntable_ = model;
+    poses_ = model->poses();
+  }
+
+ private:
+  detail::TurntablePoses* turntable_ = nullptr;
   std::vector<int> view_numbers_;  // for messages (RegistrationOptions::view_numbers)
   std::vector<ViewData>& views_;
   std::vector<Eigen::Isometry3d>& poses_;
@@ -360,6 +409,18 @@ Eigen::Isometry3d coarse_table_from_view(const slproto::TurntableCalibration& tu
   return table_from_cam * to_isometry(turntable.rotation_in_camera(-angle_deg));
 }
 
+const char* refinement_mode_name(RefinementMode mode) {
+  switch (mode) {
+    case RefinementMode::turntable:
+      return "turntable";
+    case RefinementMode::joint:
+      return "joint";
+    case RefinementMode::sequential:
+      return "sequential";
+  }
+  return "turntable";
+}
+
 double rotation_angle_deg(const Eigen::Isometry3d& transform) {
   return Eigen::AngleAxisd(transform.linear()).angle() * kDegPerRad;
 }
@@ -410,6 +471,7 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
 
   const int n = static_cast<int>(views.size());
   RegistrationResult result;
+  result.mode = options.mode;
   result.views.resize(views.size());
   std::vector<Eigen::Isometry3d> poses(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
@@ -428,12 +490,22 @@ RegistrationResult register_views(const std::vector<PointCloud>& views, const st
   if (options.close_loop && n > 2) neighbours.emplace_back(n - 1, 0);
 
   if (n > 1) {
-    if (options.mode == RefinementMode::joint) {
-      std::vector<std::pair<int, int>> directed;
-      for (auto [a, b] : neighbours) {
-        directed.emplace_back(a, b);
-        directed.emplace_back(b, a);
-      }
+    std::vector<std::pair<int, int>> directed;  // every neighbouring pair, both ways
+    for (auto [a, b] : neighbours) {
+      directed.emplace_back(a, b);
+      directed.emplace_back(b, a);
+    }
+    if (options.mode == RefinementMode::turntable) {
+      detail::TurntablePoses model(turntable, angles_deg);
+      JointIcp icp(data, poses, std::vector<bool>(views.size(), false), directed, options.icp,
+                   options.turntable_prior_deg, options.turntable_prior_mm, &interrupt, options.view_numbers);
+      icp.use_turntable(&model);
+      result.iterations = icp.run();
+      result.axis_tilt_deg = model.axis_tilt_deg();
+      result.axis_shift_mm = model.axis_shift_mm();
+      for (std::size_t i = 0; i < views.size(); ++i)
+        result.views[i].angle_correction_deg = model.angle_correction_deg(i);
+    } else if (options.mode == RefinementMode::joint) {
       std::vector<bool> fixed(views.size(), false);
       fixed[0] = true;
       JointIcp icp(data, poses, fixed, directed, options.icp, options.turntable_prior_deg, options.turntable_prior_mm,
@@ -526,6 +598,9 @@ RegistrationResult register_views_with_points(const std::vector<PointCloud>& vie
   const RegistrationResult registered = register_views(subset, subset_angles, turntable, subset_options, interrupt);
   RegistrationResult result;
   result.iterations = registered.iterations;
+  result.mode = registered.mode;
+  result.axis_tilt_deg = registered.axis_tilt_deg;
+  result.axis_shift_mm = registered.axis_shift_mm;
   result.views.resize(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
     result.views[i].coarse_table_from_view = coarse_table_from_view(turntable, angles_deg[i]);

@@ -61,13 +61,20 @@ IcpResult icp_point_to_plane(const PointCloud& source, const PointCloud& target,
                              const Eigen::Isometry3d& initial_target_from_source, const IcpOptions& options = {});
 
 enum class RefinementMode {
-  joint,       // all views at once over every neighbouring pair and the closing pair
+  // All views at once over every neighbouring pair and the closing pair, with the poses a
+  // turntable gives: one axis (the calibrated one, corrected by a small tilt and shift shared by
+  // all views) and one angle correction per view.
+  turntable,
+  joint,       // as turntable, but 6 free degrees of freedom per view (a part moved by hand, a wobbling table)
   sequential,  // each view onto its predecessor, chained (what joint refinement improves on)
 };
 
+// "turntable", "joint", "sequential": the config's and report's word for the mode.
+const char* refinement_mode_name(RefinementMode mode);
+
 struct RegistrationOptions {
   IcpOptions icp;
-  RefinementMode mode = RefinementMode::joint;
+  RefinementMode mode = RefinementMode::turntable;
   bool close_loop = true;  // pair the last view with view 0 when the views span the circle
   // Joint mode: how far (1 sigma) the calibrated turntable pose of a view is trusted. Each
   // view's deviation from it is penalised as a measurement of that uncertainty, weighed
@@ -87,7 +94,8 @@ struct ViewRegistration {
   Eigen::Isometry3d table_from_view = Eigen::Isometry3d::Identity();
   double correction_deg = 0;  // of table_from_view * coarse^-1, i.e. what ICP changed
   double correction_mm = 0;
-  double residual_rms_mm = 0;  // over this view's correspondences with its neighbours
+  double angle_correction_deg = 0;  // turntable mode: added to the reported angle (view 0: 0)
+  double residual_rms_mm = 0;       // over this view's correspondences with its neighbours
   std::size_t correspondences = 0;
 };
 
@@ -101,6 +109,9 @@ struct RegistrationResult {
   std::vector<ViewRegistration> views;
   std::vector<PairResidual> pairs;  // (i, i+1) for each neighbour, then (last, 0) if closed
   int iterations = 0;
+  RefinementMode mode = RefinementMode::turntable;
+  // Turntable mode: how far the data moved the rotation axis from the calibrated one.
+  double axis_tilt_deg = 0, axis_shift_mm = 0;
 };
 
 // `views[i]` is view i's cloud in its camera frame, with normals; `angles_deg[i]` its table
