@@ -391,6 +391,7 @@ json scan_result_to_json(const core::ScanResult& result) {
                    {"pinholes_crossing", st.pinholes_crossing},
                    {"crossed_faces_removed", st.crossed_faces_removed},
                    {"holes_crossing_unrefined", st.holes_crossing_unrefined},
+                   {"holes_left_plain", st.holes_left_plain},
                    {"sides_separated", st.sides_separated},
                    {"self_intersections", st.self_intersections},
                    {"triangles_before_simplify", st.triangles_before_simplify},

@@ -23,6 +23,7 @@
 #include <unordered_set>
 #include <vector>
 
+#include "fit_sums.hpp"
 #include "slscan/core/detail/nearest_tree.hpp"
 
 namespace slscan::mesh {
@@ -32,13 +33,17 @@ namespace {
 constexpr int max_reclosures = 4;
 // The fit takes the points whose normal is within 90 deg of the query's side (docs/mesh.md step 2).
 constexpr float side_agreement_cosine = 0;
-// The level set's voxels are fitted in blocks of fit_block^3 sharing one neighbour search: 2 cut
-// the fit's time on the full-resolution ball bar from 1.5 to 1.0-1.1 s (4: no faster).
-constexpr int fit_block = 2;
+// The level set's voxels are fitted in blocks of fit_block^3 sharing one neighbour search. With
+// the fit's sums in SIMD lanes (fit_sums.hpp) the search is the larger cost: 4 fits the
+// full-resolution blade's voxels in 0.37 s, 2 in 0.46 s, 8 in 0.48 s (docs/mesh.md, "Speed").
+constexpr int fit_block = 4;
 // Pinholes (border cycles of at most this many edges, at most this many cells across) are closed
 // in raw mode too (docs/mesh.md step 6).
 constexpr std::size_t pinhole_max_edges = 40;
 constexpr double pinhole_max_cells = 6;
+// The mesh's vertices are projected in blocks of this many cells across sharing one search (the
+// blade: 2 cells 0.34 s, 3 0.29 s, 4 0.26 s).
+constexpr int project_block = 4;
 constexpr int blocks_per_leaf = openvdb::FloatTree::LeafNodeType::DIM / fit_block;
 
 // A k-d tree over a point array (core's NearestTree: built on two threads, points copied side by
@@ -179,10 +184,6 @@ class Implicit {
         support_(3 * sigma),
         normal_gate_(static_cast<float>(normal_gate)) {}
 
-  struct Neighbour {
-    float d2;
-    std::uint32_t i;
-  };
   struct Value {
     double f = 0;
     Eigen::Vector3d normal = Eigen::Vector3d::Zero();  // gradient of the fit at x
@@ -197,84 +198,67 @@ class Implicit {
   // point's normal. `values`: a per-point value to average too (Value::value_mean).
   Value at(const Eigen::Vector3d& x, const Eigen::Vector3f& facing = Eigen::Vector3f::Zero(),
            const std::vector<float>* values = nullptr) const {
-    thread_local std::vector<Neighbour> found;
+    thread_local detail::FitCandidates found;
     found.clear();
-    Gather gather(found, static_cast<float>(support_ * support_));
+    Gather gather(*this, found, static_cast<float>(support_ * support_), values);
     tree_.search(gather, x.cast<float>());
-    return fit(x, found, facing, values);
+    found.pad();
+    return fit(x, found, facing, values != nullptr);
   }
 
   // at() for the active voxels of a block of cells: the points within the support of any of
-  // `voxels` (centres within `half_diagonal` of `centre`) gathered once, then each voxel's
-  // neighbours picked from them by the same float distance the tree computes (one tree search
-  // per block instead of per voxel: the search was most of the fit's time).
+  // `voxels` (centres within `half_diagonal` of `centre`) gathered once, then each voxel's fit
+  // over them, the points beyond its support weighing nothing (one tree search per block
+  // instead of per voxel: the search was most of the fit's time).
   // `facing` and `values` as at(): empty `facing`, the nearest point's side for every query.
   void at_block(const Eigen::Vector3d& centre, double half_diagonal, const std::vector<Eigen::Vector3d>& voxels,
                 std::vector<Value>& out, const std::vector<Eigen::Vector3f>& facing = {},
                 const std::vector<float>* values = nullptr) const {
-    thread_local std::vector<Neighbour> candidates, found;
+    thread_local detail::FitCandidates candidates;
     candidates.clear();
     const double reach = support_ + half_diagonal;
-    Gather gather(candidates, static_cast<float>(reach * reach));
+    Gather gather(*this, candidates, static_cast<float>(reach * reach), values);
     tree_.search(gather, centre.cast<float>());
-    const auto support2 = static_cast<float>(support_ * support_);
+    candidates.pad();
     out.clear();
-    for (std::size_t v = 0; v < voxels.size(); ++v) {
-      const Eigen::Vector3d& x = voxels[v];
-      const Eigen::Vector3f q = x.cast<float>();
-      found.clear();
-      for (const Neighbour& c : candidates) {
-        const Eigen::Vector3f& p = points_[c.i];
-        const float dx = q.x() - p.x(), dy = q.y() - p.y(), dz = q.z() - p.z();
-        const float d2 = dx * dx + dy * dy + dz * dz;
-        if (d2 < support2) found.push_back({d2, c.i});
-      }
-      out.push_back(fit(x, found, facing.empty() ? Eigen::Vector3f::Zero() : facing[v], values));
-    }
+    for (std::size_t v = 0; v < voxels.size(); ++v)
+      out.push_back(
+          fit(voxels[v], candidates, facing.empty() ? Eigen::Vector3f::Zero() : facing[v], values != nullptr));
   }
 
-  // The fit at x to the neighbours found (within the support).
-  Value fit(const Eigen::Vector3d& x, const std::vector<Neighbour>& found,
-            const Eigen::Vector3f& facing = Eigen::Vector3f::Zero(), const std::vector<float>* values = nullptr) const {
-    Sums r;
-    bool two_sided = false;
-    float value_mean = std::numeric_limits<float>::quiet_NaN();
-    if (!found.empty()) {
-      // Only the points facing the nearest point's way: across a wall or an edge thinner than the
-      // kernel the other side's points (normals opposite) would pull the fit between the two.
-      std::size_t nearest = 0;
-      for (std::size_t k = 1; k < found.size(); ++k)
-        if (found[k].d2 < found[nearest].d2 || (found[k].d2 == found[nearest].d2 && found[k].i < found[nearest].i))
-          nearest = k;
-      const Eigen::Vector3f reference = facing.isZero() ? normals_[found[nearest].i] : facing;
-      for (const Neighbour& q : found)
-        if (normals_[q.i].dot(reference) < 0) two_sided = true;
-      double value_weight = 0, value_sum = 0;
-      for (const Neighbour& q : found) {
-        const double w = std::exp(-static_cast<double>(q.d2) * inv_two_sigma2_);
-        if (normals_[q.i].dot(reference) > normal_gate_) r.add(*this, x, q, w);
-        if (values != nullptr) {
-          value_weight += w;
-          value_sum += w * static_cast<double>((*values)[q.i]);
-        }
-      }
-      if (value_weight > 1e-9) value_mean = static_cast<float>(value_sum / value_weight);
+  // The fit at x to the candidates within its support (fit_sums.hpp: the sums, in SIMD lanes).
+  Value fit(const Eigen::Vector3d& x, const detail::FitCandidates& candidates, const Eigen::Vector3f& facing,
+            bool with_values) const {
+    detail::FitQuery query;
+    const Eigen::Vector3f at = x.cast<float>();
+    for (int a = 0; a < 3; ++a) {
+      query.x[a] = at[a];
+      query.facing[a] = facing[a];
     }
+    query.support2 = static_cast<float>(support_ * support_);
+    query.inv_two_sigma2 = static_cast<float>(inv_two_sigma2_);
+    query.normal_gate = normal_gate_;
+    query.with_values = with_values;
+    const detail::FitSums r = detail::fit_sums(candidates, query);
     Value v;
-    v.value_mean = value_mean;
-    v.two_sided = two_sided;
+    if (r.value_weight > 1e-9) v.value_mean = static_cast<float>(r.value_sum / r.value_weight);
+    v.two_sided = r.two_sided;
     v.weight = r.weight;
     if (!(r.weight > 0)) return v;
-    // Sums in coordinates relative to x: the fit's value at x is then u0.
-    const Eigen::Vector3d m = r.p / r.weight, nbar = r.n / r.weight;
+    // Sums in coordinates relative to `at`: the fit's value there is u0.
+    const Eigen::Vector3d m = Eigen::Vector3d(r.p[0], r.p[1], r.p[2]) / r.weight;
+    const Eigen::Vector3d nbar = Eigen::Vector3d(r.n[0], r.n[1], r.n[2]) / r.weight;
     const double pp = r.pp / r.weight, pn = r.pn / r.weight;
     const double spread = pp - m.squaredNorm();
     double u4 = spread > 1e-12 ? 0.5 * (pn - m.dot(nbar)) / spread : 0;
     const double max_u4 = 0.5 / sigma_;  // a fitted radius below sigma is noise, not shape
     u4 = std::clamp(u4, -max_u4, max_u4);
     const Eigen::Vector3d u = nbar - 2 * u4 * m;
-    v.f = -u.dot(m) - u4 * pp;
-    v.normal = u;
+    const double u0 = -u.dot(m) - u4 * pp;
+    // The algebraic sphere u0 + u.y + u4 |y|^2 (y from `at`) and its gradient at x itself.
+    const Eigen::Vector3d delta = x - at.cast<double>();
+    v.f = u0 + u.dot(delta) + u4 * delta.squaredNorm();
+    v.normal = u + 2 * u4 * delta;
     return v;
   }
 
@@ -291,33 +275,25 @@ class Implicit {
   double support() const { return support_; }
 
  private:
-  // The points within the support, in the tree's fixed traversal order.
+  // The points within a radius, in the tree's fixed traversal order, copied side by side.
   struct Gather {
     using DistanceType = float;
     using IndexType = std::uint32_t;
-    Gather(std::vector<Neighbour>& out, float r2) : found(out), radius2(r2) {}
-    std::vector<Neighbour>& found;
+    Gather(const Implicit& implicit, detail::FitCandidates& out, float r2, const std::vector<float>* values)
+        : self(implicit), found(out), radius2(r2), point_values(values) {}
+    const Implicit& self;
+    detail::FitCandidates& found;
     float radius2;
+    const std::vector<float>* point_values;
     bool addPoint(float d2, std::uint32_t i) {
-      if (d2 < radius2) found.push_back({d2, i});
+      if (d2 < radius2)
+        found.push(self.points_[i].data(), self.normals_[i].data(), point_values != nullptr ? (*point_values)[i] : 0.0f,
+                   i);
       return true;
     }
     float worstDist() const { return radius2; }
     bool full() const { return true; }
     std::size_t size() const { return found.size(); }
-  };
-  struct Sums {
-    double weight = 0, pp = 0, pn = 0;
-    Eigen::Vector3d p = Eigen::Vector3d::Zero(), n = Eigen::Vector3d::Zero();
-    void add(const Implicit& self, const Eigen::Vector3d& x, const Neighbour& q, double w) {
-      const Eigen::Vector3d ni = self.normals_[q.i].cast<double>();
-      const Eigen::Vector3d pi = self.points_[q.i].cast<double>() - x;
-      weight += w;
-      p += w * pi;
-      n += w * ni;
-      pp += w * pi.squaredNorm();
-      pn += w * pi.dot(ni);
-    }
   };
 
   const std::vector<Eigen::Vector3f>& points_;
@@ -648,34 +624,67 @@ core::MeshResult level_set_mesh(const std::vector<Eigen::Vector3f>& points, cons
   // but not beyond the rim (the points on one side: the centroid more than that away).
   const auto trim_gate = static_cast<float>(options.trim_factor * scale);
   const auto gap_gate = 2 * trim_gate;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, vertices.size(), 256), [&](const auto& r) {
+  // The vertices in blocks of project_block cells, each block's fits over one tree search (as
+  // the voxels'): with the fit's sums in SIMD lanes the search is the larger cost.
+  std::vector<std::uint32_t> by_block(vertices.size());
+  std::iota(by_block.begin(), by_block.end(), 0u);
+  const double block_size = project_block * cell;
+  std::vector<std::uint64_t> block_of(vertices.size());
+  for (std::size_t i = 0; i < vertices.size(); ++i) block_of[i] = cell_key(vertices[i], block_size);
+  std::stable_sort(by_block.begin(), by_block.end(),
+                   [&](std::uint32_t a, std::uint32_t b) { return block_of[a] < block_of[b]; });
+  std::vector<std::size_t> block_begin;
+  for (std::size_t k = 0; k < by_block.size(); ++k)
+    if (k == 0 || block_of[by_block[k]] != block_of[by_block[k - 1]]) block_begin.push_back(k);
+  block_begin.push_back(by_block.size());
+  const double block_half_diagonal = 0.5 * std::sqrt(3.0) * block_size;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, block_begin.size() - 1, 16), [&](const auto& r) {
     core::interruption_point(interrupt);
-    for (std::size_t i = r.begin(); i < r.end(); ++i) {
-      const Eigen::Vector3d x0 = vertices[i].cast<double>();
-      Eigen::Vector3d x = x0;
-      Eigen::Vector3d n = Eigen::Vector3d::Zero();
-      const auto v = implicit.at(x0, facing[i], with_intensity ? &intensity : nullptr);
-      two_sided[i] = v.two_sided ? 1 : 0;
-      if (with_intensity) vintensity[i] = v.value_mean;
-      if (v.weight > 1e-6 && v.normal.norm() >= 1e-3) {
-        n = v.normal.normalized();
-        const Eigen::Vector3d moved = -v.f * v.normal / v.normal.squaredNorm();
-        x = x0 + (moved.norm() > cell ? Eigen::Vector3d(moved * (cell / moved.norm())) : moved);
+    std::vector<Eigen::Vector3d> xs;
+    std::vector<Eigen::Vector3f> sides;
+    std::vector<Implicit::Value> fits;
+    for (std::size_t b = r.begin(); b < r.end(); ++b) {
+      xs.clear();
+      sides.clear();
+      Eigen::Vector3f lo = vertices[by_block[block_begin[b]]], hi = lo;
+      for (std::size_t k = block_begin[b]; k < block_begin[b + 1]; ++k) {
+        const std::uint32_t i = by_block[k];
+        xs.push_back(vertices[i].cast<double>());
+        sides.push_back(facing[i]);
+        lo = lo.cwiseMin(vertices[i]);
+        hi = hi.cwiseMax(vertices[i]);
       }
-      vertices[i] = x.cast<float>();
-      vnormals[i] = n.cast<float>();
-      float d2 = 0;
-      const std::int64_t k = implicit.tree().nearest(vertices[i], gap_gate, d2);
-      if (k < 0) continue;
-      const Eigen::Vector3f& nearest_normal = normals[static_cast<std::size_t>(k)];
-      if (d2 > trim_gate * trim_gate) {
-        Tree::Centroid around(gap_gate * gap_gate);
-        around.points = &points;
-        implicit.tree().search(around, vertices[i]);
-        const Eigen::Vector3f offset = around.sum / static_cast<float>(around.count) - vertices[i];
-        if ((offset - nearest_normal * nearest_normal.dot(offset)).norm() > scale) continue;
+      const Eigen::Vector3d centre = 0.5 * (lo + hi).cast<double>();
+      const double half_diagonal = std::min(block_half_diagonal, 0.5 * (hi - lo).cast<double>().norm() + 1e-6);
+      implicit.at_block(centre, half_diagonal, xs, fits, sides, with_intensity ? &intensity : nullptr);
+      for (std::size_t k = block_begin[b]; k < block_begin[b + 1]; ++k) {
+        const std::uint32_t i = by_block[k];
+        const Eigen::Vector3d x0 = xs[k - block_begin[b]];
+        Eigen::Vector3d x = x0;
+        Eigen::Vector3d n = Eigen::Vector3d::Zero();
+        const Implicit::Value& v = fits[k - block_begin[b]];
+        two_sided[i] = v.two_sided ? 1 : 0;
+        if (with_intensity) vintensity[i] = v.value_mean;
+        if (v.weight > 1e-6 && v.normal.norm() >= 1e-3) {
+          n = v.normal.normalized();
+          const Eigen::Vector3d moved = -v.f * v.normal / v.normal.squaredNorm();
+          x = x0 + (moved.norm() > cell ? Eigen::Vector3d(moved * (cell / moved.norm())) : moved);
+        }
+        vertices[i] = x.cast<float>();
+        vnormals[i] = n.cast<float>();
+        float d2 = 0;
+        const std::int64_t nearest = implicit.tree().nearest(vertices[i], gap_gate, d2);
+        if (nearest < 0) continue;
+        const Eigen::Vector3f& nearest_normal = normals[static_cast<std::size_t>(nearest)];
+        if (d2 > trim_gate * trim_gate) {
+          Tree::Centroid around(gap_gate * gap_gate);
+          around.points = &points;
+          implicit.tree().search(around, vertices[i]);
+          const Eigen::Vector3f offset = around.sum / static_cast<float>(around.count) - vertices[i];
+          if ((offset - nearest_normal * nearest_normal.dot(offset)).norm() > scale) continue;
+        }
+        point_normal[i] = nearest_normal;
       }
-      point_normal[i] = nearest_normal;
     }
   });
 

@@ -91,6 +91,9 @@ struct MeshStats {
   // watertight: long borders whose plain patch crossed the surface, removed before refinement
   // (over every closure)
   std::size_t holes_crossing_unrefined = 0;
+  // watertight: holes larger than fill_holes_mm whose plain patch was too large to refine, kept
+  // plain (over every closure)
+  std::size_t holes_left_plain = 0;
   std::size_t crossed_faces_removed = 0;  // watertight: measured faces a fill crossed, replaced by the refill
   std::size_t self_intersections = 0;     // watertight: face pairs left (0 unless a hole stayed open)
   bool closed = false;
