@@ -12,7 +12,7 @@
 
 #include "slscan/io/mesh_file.hpp"
 #include "slscan/io/ply.hpp"
-#include "slscan/session/batch.hpp"
+#include "slscan/session/file_hash.hpp"
 
 #ifndef SLSCAN_VERSION
 #define SLSCAN_VERSION "unknown"

@@ -28,7 +28,7 @@
 #include "slscan/core/measure.hpp"
 #include "slscan/io/capture_replay.hpp"
 #include "slscan/io/ply.hpp"
-#include "slscan/session/batch.hpp"
+#include "slscan/session/file_hash.hpp"
 #include "slscan/session/live_scan.hpp"
 #include "slscan/session/reprocess.hpp"
 #include "status.hpp"
@@ -126,8 +126,8 @@ json provenance(const core::ReconstructionOptions& options, const slproto::RigCa
 }
 
 // The capture's hash and modification time (when it was recorded), for report.json "capture".
-void describe_capture_file(json& capture, const std::string& path) {
-  capture["sha256"] = session::sha256_file(path);
+void describe_capture_file(json& capture, const std::string& path, const std::string& sha256) {
+  capture["sha256"] = sha256;
   if (const auto written = file_time(path)) capture["file_utc"] = utc_seconds(*written);
 }
 
@@ -373,6 +373,7 @@ int run_reprocess(const ReprocessRequest& request, const Console& console) {
   const core::ReconstructionOptions options = options_from(request.config_path, request.mesh);
   const slproto::RigCalibration calibration = load_calibration_or_throw(request.calibration_path);
   prepare_output_folder(request.output_dir, "reprocess --out", false);
+  session::BackgroundSha256 capture_hash(request.capture_path);  // while it is reconstructed
   session::ReprocessResult replayed;
   try {
     replayed =
@@ -391,7 +392,7 @@ int run_reprocess(const ReprocessRequest& request, const Console& console) {
   report["capture"] = {{"file", request.capture_path},
                        {"frames", replayed.summary.frames},
                        {"complete", replayed.summary.done.has_value()}};
-  describe_capture_file(report["capture"], request.capture_path);
+  describe_capture_file(report["capture"], request.capture_path, capture_hash.get());
   // The capture in the output folder itself (reprocess --out of its own folder): linked too.
   if (std::error_code e; std::filesystem::equivalent(
           request.capture_path,
@@ -572,7 +573,7 @@ int run_scan(const ScanCommand& command, const Console& console) {
   json report = provenance(options, calibration, command.calibration_path, run);
   report["capture"] = {
       {"file", "capture.slcap"}, {"in_folder", "capture.slcap"}, {"frames", scan.frames}, {"complete", true}};
-  describe_capture_file(report["capture"], request.capture_path);
+  describe_capture_file(report["capture"], request.capture_path, scan.capture_sha256);
   report["board"] = {{"name", scan.board.board_name()}, {"software", scan.board.software_version()}};
   json timing = json::array();
   for (const auto& stat : scan.done->timing())

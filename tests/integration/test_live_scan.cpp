@@ -272,6 +272,14 @@ TEST_F(LiveScan, ReportHoldsCountsResidualsAndTimings) {
       EXPECT_GT(p["triangulate_ms"].get<double>(), 0.0);
     }
     EXPECT_GT(view["fusion"]["both"].get<std::size_t>(), 1000u);
+    // The fuse step's parts, each timed within the whole.
+    double parts_ms = 0;
+    for (const char* step : {"flying_pixels", "fusion", "denoise", "outliers", "depth_smoothing", "normals"}) {
+      ASSERT_TRUE(view["fuse_step_ms"].contains(step)) << step;
+      EXPECT_GE(view["fuse_step_ms"][step].get<double>(), 0.0) << step;
+      parts_ms += view["fuse_step_ms"][step].get<double>();
+    }
+    EXPECT_LE(parts_ms, view["fuse_ms"].get<double>());
     const json& denoise = view["turntable_denoise"];
     EXPECT_GT(denoise["below_min_height"].get<std::size_t>(), 1000u) << "the platform is removed";
     EXPECT_EQ(denoise["kept"].get<std::size_t>() + denoise["below_min_height"].get<std::size_t>() +
@@ -424,6 +432,7 @@ TEST_F(LiveScan, ReprocessOfTheRecordedCaptureIsBitIdentical) {
     }
     for (auto& v : (*s)["views"]) {
       v.erase("fuse_ms");
+      v.erase("fuse_step_ms");
       for (auto& p : v["projectors"]) {
         p.erase("decode_ms");
         p.erase("triangulate_ms");

@@ -131,7 +131,7 @@ done
 # runs, local ones too): those are compared without their figures.
 untimed() {
   case "$1" in
-    *.json) sed -E '/"stage_ms": \{/,/\}/d; /"[a-z_]+_ms": /d; /"started_utc": /d; /"age_days": /d' "$1" ;;
+    *.json) sed -E '/"(stage|fuse_step)_ms": \{/,/\}/d; /"[a-z_]+_ms": /d; /"started_utc": /d; /"age_days": /d' "$1" ;;
     *) sed -E '/ ms<\/td>|\(ms\)/d; s/started [0-9T:Z-]+//; s/[0-9.]+ days before the run//' "$1" ;;
   esac
 }

@@ -1,7 +1,6 @@
 #include "slscan/session/batch.hpp"
 
 #include <fcntl.h>
-#include <openssl/evp.h>
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -33,41 +32,6 @@ using slproto::errno_text;
 namespace {
 
 constexpr int plan_format = 1;
-
-std::string hex(const unsigned char* bytes, unsigned size) {
-  static const char digits[] = "0123456789abcdef";
-  std::string out;
-  out.reserve(size * 2);
-  for (unsigned i = 0; i < size; ++i) {
-    out.push_back(digits[bytes[i] >> 4]);
-    out.push_back(digits[bytes[i] & 15]);
-  }
-  return out;
-}
-
-struct DigestDeleter {
-  void operator()(EVP_MD_CTX* context) const { EVP_MD_CTX_free(context); }
-};
-
-class Sha256 {
- public:
-  Sha256() : context_(EVP_MD_CTX_new()) {
-    if (!context_ || EVP_DigestInit_ex(context_.get(), EVP_sha256(), nullptr) != 1)
-      throw std::runtime_error("OpenSSL: cannot start a SHA-256");
-  }
-  void update(const void* data, std::size_t size) {
-    if (EVP_DigestUpdate(context_.get(), data, size) != 1) throw std::runtime_error("OpenSSL: SHA-256 update failed");
-  }
-  std::string finish() {
-    unsigned char digest[EVP_MAX_MD_SIZE];
-    unsigned size = 0;
-    if (EVP_DigestFinal_ex(context_.get(), digest, &size) != 1) throw std::runtime_error("OpenSSL: SHA-256 failed");
-    return hex(digest, size);
-  }
-
- private:
-  std::unique_ptr<EVP_MD_CTX, DigestDeleter> context_;
-};
 
 std::int64_t mtime_ns(const struct stat& info) {
   return static_cast<std::int64_t>(info.st_mtim.tv_sec) * 1'000'000'000 + info.st_mtim.tv_nsec;
@@ -181,32 +145,6 @@ json plan_to_json(const BatchPlan& plan) {
 }
 
 }  // namespace
-
-std::string sha256_file(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) throw io::IoError("cannot open " + path + ": " + errno_text(errno));
-  Sha256 digest;
-  std::vector<unsigned char> buffer(std::size_t{8} << 20);
-  for (;;) {
-    const ssize_t n = ::read(fd, buffer.data(), buffer.size());
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      const int error = errno;
-      ::close(fd);
-      throw io::IoError("reading " + path + ": " + errno_text(error));
-    }
-    if (n == 0) break;
-    digest.update(buffer.data(), static_cast<std::size_t>(n));
-  }
-  ::close(fd);
-  return digest.finish();
-}
-
-std::string sha256_text(const std::string& text) {
-  Sha256 digest;
-  digest.update(text.data(), text.size());
-  return digest.finish();
-}
 
 std::string BatchPlan::job_dir(std::size_t index) const {
   return (fs::path(root) / "jobs" / std::to_string(index)).string();

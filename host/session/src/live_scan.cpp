@@ -9,6 +9,7 @@
 #include "slproto/zstd_codec.hpp"
 #include "slscan/io/capture_replay.hpp"
 #include "slscan/io/io_error.hpp"
+#include "slscan/session/file_hash.hpp"
 #include "slscan/session/stream_reconstruction.hpp"
 
 namespace slscan::session {
@@ -226,8 +227,10 @@ LiveScanResult run_live_scan(const LiveScanRequest& command, const slproto::RigC
   if (abort_sent) out.aborted = true;
   if (abort_sent || out.out_of_memory_stage) return out;
   const auto last_frame = Clock::now();
+  BackgroundSha256 capture_hash(command.capture_path);     // while the last views are reconstructed
   out.reconstruction = stream.finish(command.stop, &log);  // Ctrl-C now: the capture is complete
   out.last_frame_to_model_s = std::chrono::duration<double>(Clock::now() - last_frame).count();
+  out.capture_sha256 = capture_hash.get();
   return out;
 }
 

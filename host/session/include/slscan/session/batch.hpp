@@ -23,13 +23,10 @@
 #include <string>
 #include <vector>
 
+#include "slscan/session/file_hash.hpp"
 #include "slscan/session/session_log.hpp"
 
 namespace slscan::session {
-
-// Lower-case hex SHA-256 of a file's bytes / of a string. Throws io::IoError naming the file.
-std::string sha256_file(const std::string& path);
-std::string sha256_text(const std::string& text);
 
 struct BatchJob {
   std::size_t index = 0;

@@ -53,6 +53,7 @@ struct LiveScanResult {
   std::optional<std::string> out_of_memory_stage;
   std::optional<core::ScanResult> reconstruction;
   double last_frame_to_model_s = 0;
+  std::string capture_sha256;  // of the complete capture, set with `reconstruction`
 };
 
 // Throws DeviceError (connection, the board's errors; the message says where the partial
