@@ -5,6 +5,7 @@
 #include <cmath>
 #include <random>
 
+#include "slscan/core/cloud_filters.hpp"
 #include "slscan/core/normals.hpp"
 
 namespace {
@@ -47,6 +48,45 @@ TEST(GridNormals, PlanesAcrossADepthEdgeStayExact) {
     ++checked;
   }
   EXPECT_GT(checked, 2800u);
+}
+
+// What the reconstruction keeps of a view: its valid points with their grid normals, in one
+// pass over the valid slots only. Must be what grid_normals then to_point_cloud give, bit for
+// bit: a sparse cloud (an object in a corner, holes, a lone point whose normal is unsupported
+// and so dropped), with and without intensity.
+TEST(GridNormals, OrientedPointCloudIsGridNormalsThenToPointCloudBitForBit) {
+  Eigen::Vector3f n_near, n_far;
+  auto cloud = two_planes(n_near, n_far);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const std::size_t u = i % 64, v = i / 64;
+    if (u < 20 || v > 30) cloud.valid[i] = 0;  // a region, as after the platform is removed
+    cloud.quality[i] = static_cast<float>(i % 7);
+  }
+  const std::size_t lone = 45 * 64 + 5;  // valid, no valid neighbour: NaN normal, dropped
+  cloud.valid[lone] = 1;
+  for (const bool with_intensity : {false, true}) {
+    SCOPED_TRACE(with_intensity ? "with intensity" : "without intensity");
+    cloud.intensity.clear();
+    if (with_intensity)
+      for (std::size_t i = 0; i < cloud.size(); ++i) cloud.intensity.push_back(0.001f * static_cast<float>(i));
+    const Eigen::Vector3f viewpoint(1, 2, -3);
+    const slscan::core::GridNormalOptions options{.window_radius = 2, .max_neighbor_distance_mm = 0.5f};
+    const auto normals = slscan::core::grid_normals(cloud, viewpoint, options);
+    ASSERT_FALSE(normals[lone].allFinite());
+    const auto expected = slscan::core::to_point_cloud(cloud, 3, &normals);
+    const auto got = slscan::core::oriented_point_cloud(cloud, 3, viewpoint, options);
+    ASSERT_GT(expected.size(), 1000u);
+    ASSERT_EQ(got.size(), expected.size());
+    for (std::size_t k = 0; k < got.size(); ++k) {
+      ASSERT_EQ(got.points[k], expected.points[k]) << k;
+      ASSERT_EQ(got.normals[k], expected.normals[k]) << k;
+      ASSERT_EQ(got.confidence[k], expected.confidence[k]) << k;
+    }
+    EXPECT_EQ(got.intensity, expected.intensity);
+    EXPECT_EQ(got.view_id, expected.view_id);
+  }
+  cloud.quality.pop_back();
+  EXPECT_THROW(slscan::core::oriented_point_cloud(cloud, 0), std::invalid_argument);
 }
 
 TEST(GridNormals, RejectsInconsistentCloud) {

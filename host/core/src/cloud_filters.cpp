@@ -145,48 +145,55 @@ OrganizedOutlierResult statistical_outlier_removal(OrganizedCloud cloud, double 
   const auto k = static_cast<std::size_t>(options.k);
   const float edge_per_depth = static_cast<float>((window_radius + 1) / focal_px);
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  std::vector<float> mean_distance(n, nan);
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<float> d2;
-    const std::size_t window_side = 2 * static_cast<std::size_t>(window_radius) + 1;
-    d2.reserve(window_side * window_side);
-    for (int v = rows.begin(); v < rows.end(); ++v)
-      for (int u = 0; u < w; ++u) {
-        const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
-        if (!cloud.valid[i]) continue;
-        const Eigen::Vector3f& p = cloud.points[i];
-        d2.clear();
-        for (int vv = std::max(0, v - window_radius); vv <= std::min(h - 1, v + window_radius); ++vv)
-          for (int uu = std::max(0, u - window_radius); uu <= std::min(w - 1, u + window_radius); ++uu) {
-            const std::size_t j =
-                static_cast<std::size_t>(vv) * static_cast<std::size_t>(w) + static_cast<std::size_t>(uu);
-            if (j != i && cloud.valid[j]) d2.push_back((cloud.points[j] - p).squaredNorm());
-          }
-        const float edge = edge_per_depth * std::fabs(p.z());
-        float sum = 0;
-        const std::size_t found = std::min(k, d2.size());
-        if (found < d2.size()) std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(found), d2.end());
-        for (std::size_t m = 0; m < found; ++m) sum += std::sqrt(d2[m]);
-        sum += static_cast<float>(k - found) * edge;
-        mean_distance[i] = sum / static_cast<float>(k);
-      }
-  });
+  // The valid slots in row-major order, and a mean distance for each: a view's object after
+  // the platform is removed is ~2.5 % of its grid, so nothing is kept per slot of the grid.
+  std::vector<std::uint32_t> slots;
+  slots.reserve(cloud.count_valid());
+  for (std::size_t i = 0; i < n; ++i)
+    if (cloud.valid[i]) slots.push_back(static_cast<std::uint32_t>(i));
+  std::vector<float> mean_distance(slots.size());
+  const auto width = static_cast<std::uint32_t>(w);
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, slots.size(), 1024), [&](const tbb::blocked_range<std::size_t>& r) {
+        std::vector<float> d2;
+        const std::size_t window_side = 2 * static_cast<std::size_t>(window_radius) + 1;
+        d2.reserve(window_side * window_side);
+        for (std::size_t slot = r.begin(); slot < r.end(); ++slot) {
+          const std::size_t i = slots[slot];
+          const int u = static_cast<int>(slots[slot] % width), v = static_cast<int>(slots[slot] / width);
+          const Eigen::Vector3f& p = cloud.points[i];
+          d2.clear();
+          for (int vv = std::max(0, v - window_radius); vv <= std::min(h - 1, v + window_radius); ++vv)
+            for (int uu = std::max(0, u - window_radius); uu <= std::min(w - 1, u + window_radius); ++uu) {
+              const std::size_t j =
+                  static_cast<std::size_t>(vv) * static_cast<std::size_t>(w) + static_cast<std::size_t>(uu);
+              if (j != i && cloud.valid[j]) d2.push_back((cloud.points[j] - p).squaredNorm());
+            }
+          const float edge = edge_per_depth * std::fabs(p.z());
+          float sum = 0;
+          const std::size_t found = std::min(k, d2.size());
+          if (found < d2.size())
+            std::nth_element(d2.begin(), d2.begin() + static_cast<std::ptrdiff_t>(found), d2.end());
+          for (std::size_t m = 0; m < found; ++m) sum += std::sqrt(d2[m]);
+          sum += static_cast<float>(k - found) * edge;
+          mean_distance[slot] = sum / static_cast<float>(k);
+        }
+      });
   double total = 0, total2 = 0;
-  std::size_t count = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!cloud.valid[i]) continue;
-    total += mean_distance[i];
-    total2 += static_cast<double>(mean_distance[i]) * mean_distance[i];
-    ++count;
+  for (const float d : mean_distance) {
+    total += d;
+    total2 += static_cast<double>(d) * d;
   }
+  const std::size_t count = slots.size();
   OrganizedOutlierResult result;
   result.cloud = std::move(cloud);  // no copy when the caller moved its cloud in
   if (count < 2) return result;
   const double mean = total / static_cast<double>(count);
   const double variance = std::max(0.0, (total2 - total * mean) / static_cast<double>(count - 1));
   result.threshold = mean + options.std_ratio * std::sqrt(variance);
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!result.cloud.valid[i] || mean_distance[i] <= result.threshold) continue;
+  for (std::size_t slot = 0; slot < count; ++slot) {
+    if (mean_distance[slot] <= result.threshold) continue;
+    const std::size_t i = slots[slot];
     result.cloud.points[i] = Eigen::Vector3f(nan, nan, nan);
     result.cloud.quality[i] = 0.0f;
     result.cloud.valid[i] = 0;

@@ -25,54 +25,107 @@ Eigen::Vector3f smallest_eigenvector(const Eigen::Matrix3d& covariance) {
 
 }  // namespace
 
-std::vector<Eigen::Vector3f> grid_normals(const OrganizedCloud& cloud, const Eigen::Vector3f& viewpoint,
-                                          const GridNormalOptions& options) {
-  if (options.window_radius < 1) throw std::invalid_argument("grid_normals: window_radius must be >= 1");
+namespace {
+
+void check_grid(const OrganizedCloud& cloud, const GridNormalOptions& options, const char* what) {
+  if (options.window_radius < 1) throw std::invalid_argument(std::string(what) + ": window_radius must be >= 1");
   if (static_cast<std::size_t>(cloud.width) * static_cast<std::size_t>(cloud.height) != cloud.points.size() ||
       cloud.valid.size() != cloud.points.size())
-    throw std::invalid_argument("grid_normals: organised cloud is " + std::to_string(cloud.width) + "x" +
+    throw std::invalid_argument(std::string(what) + ": organised cloud is " + std::to_string(cloud.width) + "x" +
                                 std::to_string(cloud.height) + " but holds " + std::to_string(cloud.points.size()) +
                                 " points and " + std::to_string(cloud.valid.size()) + " validity flags");
-  std::vector<Eigen::Vector3f> normals(cloud.points.size(), Eigen::Vector3f(kNaN, kNaN, kNaN));
+}
+
+// The normal of valid slot (u, v): PCA over its pixel window, NaN with too few neighbours.
+Eigen::Vector3f window_normal(const OrganizedCloud& cloud, int u, int v, const Eigen::Vector3f& viewpoint,
+                              const GridNormalOptions& options) {
   const int w = cloud.width, h = cloud.height, r = options.window_radius;
   const float max_d2 = options.max_neighbor_distance_mm * options.max_neighbor_distance_mm;
+  const Eigen::Vector3f centre =
+      cloud.points[static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u)];
+  // Accumulate about the centre point: small offsets keep float sums exact enough.
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d outer = Eigen::Matrix3d::Zero();
+  int n = 0;
+  for (int dv = -r; dv <= r; ++dv) {
+    const int vv = v + dv;
+    if (vv < 0 || vv >= h) continue;
+    const std::size_t row = static_cast<std::size_t>(vv) * static_cast<std::size_t>(w);
+    for (int du = -r; du <= r; ++du) {
+      const int uu = u + du;
+      if (uu < 0 || uu >= w) continue;
+      const std::size_t j = row + static_cast<std::size_t>(uu);
+      if (!cloud.valid[j]) continue;
+      const Eigen::Vector3f d = cloud.points[j] - centre;
+      if (d.squaredNorm() > max_d2) continue;
+      const Eigen::Vector3d dd = d.cast<double>();
+      sum += dd;
+      outer.noalias() += dd * dd.transpose();
+      ++n;
+    }
+  }
+  if (n < options.min_neighbors) return {kNaN, kNaN, kNaN};
+  const Eigen::Vector3d mean = sum / n;
+  const Eigen::Matrix3d covariance = outer / n - mean * mean.transpose();
+  Eigen::Vector3f normal = smallest_eigenvector(covariance);
+  if (normal.dot(viewpoint - centre) < 0) normal = -normal;
+  return normal;
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector3f> grid_normals(const OrganizedCloud& cloud, const Eigen::Vector3f& viewpoint,
+                                          const GridNormalOptions& options) {
+  check_grid(cloud, options, "grid_normals");
+  std::vector<Eigen::Vector3f> normals(cloud.points.size(), Eigen::Vector3f(kNaN, kNaN, kNaN));
+  const int w = cloud.width, h = cloud.height;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rows) {
-    for (int v = rows.begin(); v < rows.end(); ++v) {
+    for (int v = rows.begin(); v < rows.end(); ++v)
       for (int u = 0; u < w; ++u) {
         const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
-        if (!cloud.valid[i]) continue;
-        const Eigen::Vector3f centre = cloud.points[i];
-        // Accumulate about the centre point: small offsets keep float sums exact enough.
-        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-        Eigen::Matrix3d outer = Eigen::Matrix3d::Zero();
-        int n = 0;
-        for (int dv = -r; dv <= r; ++dv) {
-          const int vv = v + dv;
-          if (vv < 0 || vv >= h) continue;
-          const std::size_t row = static_cast<std::size_t>(vv) * static_cast<std::size_t>(w);
-          for (int du = -r; du <= r; ++du) {
-            const int uu = u + du;
-            if (uu < 0 || uu >= w) continue;
-            const std::size_t j = row + static_cast<std::size_t>(uu);
-            if (!cloud.valid[j]) continue;
-            const Eigen::Vector3f d = cloud.points[j] - centre;
-            if (d.squaredNorm() > max_d2) continue;
-            const Eigen::Vector3d dd = d.cast<double>();
-            sum += dd;
-            outer.noalias() += dd * dd.transpose();
-            ++n;
-          }
-        }
-        if (n < options.min_neighbors) continue;
-        const Eigen::Vector3d mean = sum / n;
-        const Eigen::Matrix3d covariance = outer / n - mean * mean.transpose();
-        Eigen::Vector3f normal = smallest_eigenvector(covariance);
-        if (normal.dot(viewpoint - centre) < 0) normal = -normal;
-        normals[i] = normal;
+        if (cloud.valid[i]) normals[i] = window_normal(cloud, u, v, viewpoint, options);
       }
-    }
   });
   return normals;
+}
+
+PointCloud oriented_point_cloud(const OrganizedCloud& cloud, std::uint16_t view_id, const Eigen::Vector3f& viewpoint,
+                                const GridNormalOptions& options) {
+  check_grid(cloud, options, "oriented_point_cloud");
+  if (cloud.quality.size() != cloud.points.size())
+    throw std::invalid_argument("oriented_point_cloud: organised cloud has " + std::to_string(cloud.points.size()) +
+                                " points and " + std::to_string(cloud.quality.size()) + " qualities");
+  // The slots to_point_cloud would keep, in its (row-major) order; then their normals.
+  std::vector<std::uint32_t> slots;
+  slots.reserve(cloud.count_valid());
+  for (std::size_t i = 0; i < cloud.points.size(); ++i)
+    if (cloud.valid[i] && cloud.points[i].allFinite()) slots.push_back(static_cast<std::uint32_t>(i));
+  std::vector<Eigen::Vector3f> normals(slots.size());
+  const auto w = static_cast<std::uint32_t>(cloud.width);
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, slots.size(), 1024), [&](const tbb::blocked_range<std::size_t>& r) {
+        for (std::size_t k = r.begin(); k < r.end(); ++k)
+          normals[k] =
+              window_normal(cloud, static_cast<int>(slots[k] % w), static_cast<int>(slots[k] / w), viewpoint, options);
+      });
+  PointCloud out;
+  const bool with_intensity = cloud.intensity.size() == cloud.points.size();
+  std::size_t kept = 0;
+  for (const auto& n : normals) kept += n.allFinite() ? 1 : 0;
+  out.points.reserve(kept);
+  out.confidence.reserve(kept);
+  out.normals.reserve(kept);
+  if (with_intensity) out.intensity.reserve(kept);
+  for (std::size_t k = 0; k < slots.size(); ++k) {
+    if (!normals[k].allFinite()) continue;
+    const std::size_t i = slots[k];
+    out.points.push_back(cloud.points[i]);
+    out.confidence.push_back(cloud.quality[i]);
+    if (with_intensity) out.intensity.push_back(cloud.intensity[i]);
+    out.normals.push_back(normals[k]);
+  }
+  out.view_id.assign(out.points.size(), view_id);
+  return out;
 }
 
 std::vector<Eigen::Vector3f> pca_normals(const PointCloud& cloud, const PcaNormalOptions& options) {

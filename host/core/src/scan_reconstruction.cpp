@@ -471,9 +471,8 @@ struct ScanReconstructor::Impl {
     DepthSmoothingCounts smoothing;
     if (options.smooth_depth) smoothing = smooth_depth(denoised.cloud, calibration.camera.fx, options.depth_smoothing);
     const double smoothing_ms = split();
-    const std::vector<Eigen::Vector3f> normals =
-        grid_normals(denoised.cloud, Eigen::Vector3f::Zero(), options.grid_normals);
-    products.points = to_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index), &normals);
+    products.points = oriented_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index),
+                                           Eigen::Vector3f::Zero(), options.grid_normals);
     const double normals_ms = split();
     products.cloud = std::move(denoised.cloud);
     // The albedo is in products.points; in a scan the grid is kept for the pictures and the
