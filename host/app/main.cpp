@@ -22,6 +22,7 @@
 #include "slproto/messages.hpp"
 #include "slscan/core/huge_pages.hpp"
 #include "slscan/io/io_error.hpp"
+#include "slscan/session/file_hash.hpp"
 #include "status.hpp"
 #include "worker_threads.hpp"
 
@@ -713,6 +714,7 @@ int main(int argc, char** argv) {
   slscan::core::run_with_huge_pages(argv);  // first: it may re-execute the program
   default_terminate = std::set_terminate(on_terminate);
   try {
+    slscan::session::prepare_sha256();  // before the workers take their address space
     tbb::task_scheduler_handle workers{tbb::attach{}};
     start_threads_or_warn();
     const int code = run_command_line(argc, argv);

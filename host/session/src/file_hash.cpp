@@ -1,6 +1,7 @@
 #include "slscan/session/file_hash.hpp"
 
 #include <fcntl.h>
+#include <openssl/crypto.h>
 #include <openssl/evp.h>
 #include <sys/resource.h>
 #include <sys/syscall.h>
@@ -8,6 +9,7 @@
 
 #include <cerrno>
 #include <memory>
+#include <new>
 #include <stdexcept>
 #include <vector>
 
@@ -33,10 +35,25 @@ struct DigestDeleter {
   void operator()(EVP_MD_CTX* context) const { EVP_MD_CTX_free(context); }
 };
 
+// OpenSSL 3 sets itself up (its library context, its locks, the SHA-256 implementation) on
+// first use, and when that runs out of memory (a tight ulimit -v) it does not fail cleanly: a
+// later call dereferences a lock it could not allocate (seen: SIGSEGV in EVP_MD_fetch on the
+// hash thread of a reprocess at 312 MiB). So SHA-256 is fetched once, checked, and kept for
+// the process; slscan does it first thing in main() (prepare_sha256).
+const EVP_MD* sha256_md() {
+  static const EVP_MD* const md = [] {
+    if (OPENSSL_init_crypto(0, nullptr) != 1) throw std::bad_alloc();
+    const EVP_MD* fetched = EVP_MD_fetch(nullptr, "SHA2-256", nullptr);
+    if (fetched == nullptr) throw std::bad_alloc();
+    return fetched;
+  }();
+  return md;
+}
+
 class Sha256 {
  public:
   Sha256() : context_(EVP_MD_CTX_new()) {
-    if (!context_ || EVP_DigestInit_ex(context_.get(), EVP_sha256(), nullptr) != 1)
+    if (!context_ || EVP_DigestInit_ex(context_.get(), sha256_md(), nullptr) != 1)
       throw std::runtime_error("OpenSSL: cannot start a SHA-256");
   }
   void update(const void* data, std::size_t size) {
@@ -68,6 +85,8 @@ class FileDescriptor {
 };
 
 }  // namespace
+
+void prepare_sha256() { (void)sha256_md(); }
 
 std::string sha256_file(const std::string& path, const std::atomic<bool>* stop) {
   const FileDescriptor file(::open(path.c_str(), O_RDONLY | O_CLOEXEC));

@@ -7,6 +7,11 @@
 
 namespace slscan::session {
 
+// Sets OpenSSL up and fetches its SHA-256 once, for the whole process: call it first thing, while
+// memory is at its least used (OpenSSL's own lazy set-up crashes when it runs out of memory).
+// Throws std::bad_alloc if it cannot. The functions below call it too.
+void prepare_sha256();
+
 // Lower-case hex SHA-256 of a file's bytes / of a string. Throws io::IoError naming the file.
 // `stop`, when set during the read, ends it early with io::IoError ("stopped").
 std::string sha256_file(const std::string& path, const std::atomic<bool>* stop = nullptr);
