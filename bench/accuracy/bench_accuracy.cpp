@@ -516,7 +516,7 @@ Json run_scene(const std::string& name, slrig::RigSize size, int max_views, bool
     const double filled = filled_shadow_area_mm2(products.source, truth, calibration.camera);
     filled_area_total += filled;
     j["shadow_area_filled_mm2"] = filled;
-    j["final_object_cloud"] = error_stats(products.cloud, truth, true).json();
+    j["final_object_cloud"] = error_stats(products.cloud.to_organized(), truth, true).json();
     view_reports.push_back(j);
   }
   out["views"] = view_reports;

@@ -114,15 +114,15 @@ std::string number_text(double v, const char* unit) {
   return text;
 }
 
-// `values` (one per pixel, valid where `valid`) as `colormap` colours over their 1st-99th
-// percentile range (beyond it: the end colours), black where nothing was measured, with a
-// colour bar below stating the range.
-cv::Mat colour_picture(const std::vector<float>& values, const std::vector<std::uint8_t>& valid, int width, int height,
+// `values` (one per sample, at pixel `slots[k]` of the width x height grid) as `colormap`
+// colours over their 1st-99th percentile range (beyond it: the end colours), black where nothing
+// was measured, with a colour bar below stating the range.
+cv::Mat colour_picture(const std::vector<std::uint32_t>& slots, const std::vector<float>& values, int width, int height,
                        cv::ColormapTypes colormap, const std::string& title, const char* unit) {
   std::vector<float> measured;
   measured.reserve(values.size());
-  for (std::size_t i = 0; i < values.size(); ++i)
-    if (valid[i] && std::isfinite(values[i])) measured.push_back(values[i]);
+  for (const float value : values)
+    if (std::isfinite(value)) measured.push_back(value);
   const bool any = !measured.empty();
   const auto [lo, hi] = percentile_range(std::move(measured));
   const float span = hi > lo ? hi - lo : 1.0f;
@@ -131,11 +131,11 @@ cv::Mat colour_picture(const std::vector<float>& values, const std::vector<std::
   cv::Mat mask(height, width, CV_8UC1, cv::Scalar(0));
   auto* const grey_pixels = grey.ptr<unsigned char>();
   auto* const mask_pixels = mask.ptr<unsigned char>();
-  for (std::size_t i = 0; i < values.size(); ++i) {
-    if (!valid[i] || !std::isfinite(values[i])) continue;
-    const float t = std::clamp((values[i] - lo) / span, 0.0f, 1.0f);
-    grey_pixels[i] = static_cast<unsigned char>(std::lround(255.0f * t));
-    mask_pixels[i] = 255;
+  for (std::size_t k = 0; k < values.size(); ++k) {
+    if (!std::isfinite(values[k])) continue;
+    const float t = std::clamp((values[k] - lo) / span, 0.0f, 1.0f);
+    grey_pixels[slots[k]] = static_cast<unsigned char>(std::lround(255.0f * t));
+    mask_pixels[slots[k]] = 255;
   }
   cv::Mat colour;
   cv::applyColorMap(grey, colour, colormap);
@@ -171,15 +171,15 @@ cv::Mat colour_picture(const std::vector<float>& values, const std::vector<std::
 }
 
 // Depth (camera z), turbo colours over the view's 1st-99th percentile, with its colour bar.
-cv::Mat depth_map(const core::OrganizedCloud& cloud) {
+cv::Mat depth_map(const core::SparseOrganizedCloud& cloud) {
   std::vector<float> z(cloud.size());
-  for (std::size_t i = 0; i < cloud.size(); ++i) z[i] = cloud.points[i].z();
-  return colour_picture(z, cloud.valid, cloud.width, cloud.height, cv::COLORMAP_TURBO, "depth z", "mm");
+  for (std::size_t k = 0; k < cloud.size(); ++k) z[k] = cloud.points[k].z();
+  return colour_picture(cloud.slots, z, cloud.width, cloud.height, cv::COLORMAP_TURBO, "depth z", "mm");
 }
 
 // Decode quality (phase modulation), viridis over the view's 1st-99th percentile.
-cv::Mat quality_map(const core::OrganizedCloud& cloud) {
-  return colour_picture(cloud.quality, cloud.valid, cloud.width, cloud.height, cv::COLORMAP_VIRIDIS,
+cv::Mat quality_map(const core::SparseOrganizedCloud& cloud) {
+  return colour_picture(cloud.slots, cloud.quality, cloud.width, cloud.height, cv::COLORMAP_VIRIDIS,
                         "quality (modulation)", "DN");
 }
 
@@ -258,8 +258,10 @@ cv::Mat exposure_member_map(const std::vector<std::uint8_t>& member, const std::
 
 }  // namespace
 
-std::vector<unsigned char> depth_picture_png(const core::OrganizedCloud& cloud) { return encode_png(depth_map(cloud)); }
-std::vector<unsigned char> quality_picture_png(const core::OrganizedCloud& cloud) {
+std::vector<unsigned char> depth_picture_png(const core::SparseOrganizedCloud& cloud) {
+  return encode_png(depth_map(cloud));
+}
+std::vector<unsigned char> quality_picture_png(const core::SparseOrganizedCloud& cloud) {
   return encode_png(quality_map(cloud));
 }
 

@@ -32,8 +32,8 @@ OutputFiles write_scan_outputs(const std::string& dir, const core::ScanResult& r
 // A view's depth (camera z, turbo) and decode-quality (modulation, viridis) pictures as PNG:
 // colours span the view's 1st-99th percentile (beyond: the end colours), black = nothing
 // measured, and a colour bar below the picture states the range.
-std::vector<unsigned char> depth_picture_png(const core::OrganizedCloud& cloud);
-std::vector<unsigned char> quality_picture_png(const core::OrganizedCloud& cloud);
+std::vector<unsigned char> depth_picture_png(const core::SparseOrganizedCloud& cloud);
+std::vector<unsigned char> quality_picture_png(const core::SparseOrganizedCloud& cloud);
 
 // A shaded splat rendering of a cloud with normals, seen from `azimuth_deg` around +z and
 // `elevation_deg` above the xy plane; 8-bit grey, `size` x `size`.

@@ -83,7 +83,7 @@ TEST(Pictures, DepthColoursSpanTheObjectNotAStraySpeck) {
   // object (400-432 mm) into the first 0.3 % of the colours.
   cloud.points[0].z() = 10000.0f;
   cloud.valid[static_cast<std::size_t>(5 * width + 5)] = 0;
-  const cv::Mat image = decode(depth_picture_png(cloud));
+  const cv::Mat image = decode(depth_picture_png(core::SparseOrganizedCloud::of(cloud)));
   ASSERT_FALSE(image.empty());
   ASSERT_EQ(image.type(), CV_8UC3);
   EXPECT_EQ(image.cols, width);
@@ -119,7 +119,7 @@ TEST(Pictures, QualityHasAPercentileScaleAndABar) {
   const int width = 320, height = 240;
   core::OrganizedCloud cloud = ramp_cloud(width, height);
   cloud.quality[0] = 1e6f;  // one saturated-looking pixel
-  const cv::Mat image = decode(quality_picture_png(cloud));
+  const cv::Mat image = decode(quality_picture_png(core::SparseOrganizedCloud::of(cloud)));
   ASSERT_FALSE(image.empty());
   ASSERT_GT(image.rows, height);
   EXPECT_GT(distinct_colours(image, height / 2, 0, width), 150u);
@@ -127,7 +127,7 @@ TEST(Pictures, QualityHasAPercentileScaleAndABar) {
   // An empty view still gives a picture (black, the bar saying nothing was measured).
   core::OrganizedCloud empty;
   empty.resize(64, 48);
-  const cv::Mat blank = decode(quality_picture_png(empty));
+  const cv::Mat blank = decode(quality_picture_png(core::SparseOrganizedCloud::of(empty)));
   ASSERT_FALSE(blank.empty());
   EXPECT_EQ(blank.at<cv::Vec3b>(10, 10), cv::Vec3b(0, 0, 0));
 }
@@ -141,7 +141,7 @@ core::ScanResult synthetic_result(int views, std::size_t model_points, bool mesh
     report.view_index = i;
     result.views.push_back(report);
     core::ViewProducts products;
-    products.cloud = ramp_cloud(64, 48);
+    products.cloud = core::SparseOrganizedCloud::of(ramp_cloud(64, 48));
     products.source.assign(products.cloud.size(), core::FusionSource::both);
     for (std::size_t k = 0; k < products.cloud.size(); ++k) {
       products.points.points.push_back(products.cloud.points[k]);

@@ -123,7 +123,7 @@ struct Kept {
 };
 
 Kept kept(const Capture& c, const Decodable& d, const slscan::core::ScanResult& result) {
-  const auto& cloud = result.view_products.at(0).cloud;
+  const slscan::core::OrganizedCloud cloud = result.view_products.at(0).cloud.to_organized();
   std::vector<double> errors;
   for (std::size_t i : d.pixels)
     if (cloud.valid[i]) {
@@ -157,8 +157,8 @@ TEST(NoiseAdaptive, TheRigsOwnScanIsThatOfTheFixedLimits) {
   EXPECT_EQ(view.noise_factor, 3.0);
   EXPECT_FLOAT_EQ(view.flying_max_abs_mm, 0.1f);
   EXPECT_FLOAT_EQ(view.fusion_agreement_mm, 0.2f);
-  const auto& a = adaptive.view_products.at(0).cloud;
-  const auto& b = fixed.view_products.at(0).cloud;
+  const slscan::core::OrganizedCloud a = adaptive.view_products.at(0).cloud.to_organized();
+  const slscan::core::OrganizedCloud b = fixed.view_products.at(0).cloud.to_organized();
   ASSERT_EQ(a.size(), b.size());
   std::size_t differ = 0;
   for (std::size_t i = 0; i < a.size(); ++i)

@@ -132,7 +132,7 @@ ViewRun run_view(const std::string& preset, int view_index, ReconstructionOption
   if (scan.view_products.size() != 1) throw std::runtime_error("the view was not reconstructed");
   auto& products = scan.view_products.front();
   run.result.per_projector = std::move(products.projector_clouds);
-  run.result.cloud = std::move(products.cloud);
+  run.result.cloud = products.cloud.to_organized();
   run.result.fusion = scan.views.front().fusion;
   run.result.turntable = scan.views.front().turntable_denoise;
   // The decoder's masks, for the coverage count: decode the frames once more, standalone.

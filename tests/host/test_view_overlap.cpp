@@ -34,7 +34,7 @@ Eigen::Isometry3d table_from_view(double angle_deg) {
 }
 
 struct View {
-  slscan::core::OrganizedCloud grid;
+  slscan::core::SparseOrganizedCloud grid;
   slscan::core::PointCloud points;
 };
 
@@ -42,7 +42,8 @@ struct View {
 // along its ray (a different surface in front of or behind the sphere).
 View render(const Eigen::Isometry3d& table_from_this, double depth_offset_mm = 0) {
   View view;
-  view.grid.resize(kSize, kSize);
+  slscan::core::OrganizedCloud grid;
+  grid.resize(kSize, kSize);
   const slproto::PinholeModel cam = camera();
   const Eigen::Vector3d centre = table_from_this.inverse() * kCentre;
   for (int v = 0; v < kSize; ++v)
@@ -54,14 +55,15 @@ View render(const Eigen::Isometry3d& table_from_this, double depth_offset_mm = 0
       if (disc <= 0) continue;
       const Eigen::Vector3d p = ray * (b - std::sqrt(disc));
       const std::size_t i = static_cast<std::size_t>(v) * kSize + static_cast<std::size_t>(u);
-      view.grid.points[i] = (p + ray * depth_offset_mm).cast<float>();
-      view.grid.valid[i] = 1;
-      view.grid.quality[i] = 1;
+      grid.points[i] = (p + ray * depth_offset_mm).cast<float>();
+      grid.valid[i] = 1;
+      grid.quality[i] = 1;
       view.points.points.push_back(p.cast<float>());
       view.points.normals.push_back((p - centre).normalized().cast<float>());
       view.points.view_id.push_back(0);
       view.points.confidence.push_back(1);
     }
+  view.grid = slscan::core::SparseOrganizedCloud::of(grid);
   return view;
 }
 

@@ -474,10 +474,10 @@ struct ScanReconstructor::Impl {
     products.points = oriented_point_cloud(denoised.cloud, static_cast<std::uint16_t>(view_index),
                                            Eigen::Vector3f::Zero(), options.grid_normals);
     const double normals_ms = split();
-    products.cloud = std::move(denoised.cloud);
-    // The albedo is in products.points; in a scan the grid is kept for the pictures and the
-    // overlap selection, which read positions and quality only (20 MB a view at full resolution).
-    if (!options.keep_projector_clouds) std::vector<float>().swap(products.cloud.intensity);
+    // The grid is kept for the pictures and the overlap selection, its valid slots only; the
+    // albedo is in products.points, so it stays in the grid only for diagnostics.
+    products.cloud = SparseOrganizedCloud::of(denoised.cloud, options.keep_projector_clouds);
+    denoised.cloud = {};  // the whole grid (85 MB a view at full resolution) goes now
 
     std::lock_guard lock(mutex);
     view->report.flying_max_abs_mm = flying_options.max_abs_mm;
@@ -762,7 +762,7 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
   begin_stage("select_views");
   start = Clock::now();
   if (s.options.select_best_views && clouds.size() >= 2) {
-    std::vector<const OrganizedCloud*> grids;
+    std::vector<const SparseOrganizedCloud*> grids;
     for (const auto& products : result.view_products) grids.push_back(&products.cloud);
     const OverlapSelection selection =
         select_best_views(clouds, grids, table_from_view, s.calibration.camera, s.options.overlap);

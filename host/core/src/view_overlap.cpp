@@ -18,7 +18,7 @@ void OverlapSelectionOptions::check() const {
 }
 
 OverlapSelection select_best_views(const std::vector<PointCloud>& points,
-                                   const std::vector<const OrganizedCloud*>& grids,
+                                   const std::vector<const SparseOrganizedCloud*>& grids,
                                    const std::vector<Eigen::Isometry3d>& table_from_view,
                                    const slproto::PinholeModel& camera, const OverlapSelectionOptions& options) {
   options.check();
@@ -30,8 +30,9 @@ OverlapSelection select_best_views(const std::vector<PointCloud>& points,
     if (points[i].normals.size() != points[i].size())
       throw std::invalid_argument("select_best_views: view " + std::to_string(i) + " has no normals");
     if (grids[i] == nullptr || grids[i]->width != camera.width || grids[i]->height != camera.height ||
-        grids[i]->points.size() != static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height) ||
-        grids[i]->valid.size() != grids[i]->points.size())
+        grids[i]->points.size() != grids[i]->slots.size() ||
+        grids[i]->row_begin.size() != static_cast<std::size_t>(camera.height) + 1 ||
+        grids[i]->row_begin.back() != grids[i]->slots.size())
       throw std::invalid_argument("select_best_views: view " + std::to_string(i) + "'s organised cloud is not " +
                                   std::to_string(camera.width) + "x" + std::to_string(camera.height));
   }
@@ -67,19 +68,16 @@ OverlapSelection select_best_views(const std::vector<PointCloud>& points,
         if (!camera.project({q.x(), q.y(), q.z()}, u, v)) continue;
         // Only a projection near the grid is rounded: a huge or non-finite one (an absurd
         // calibration) has no neighbour there, and lround of it would be undefined.
-        const OrganizedCloud& grid = *grids[j];
+        const SparseOrganizedCloud& grid = *grids[j];
         if (!(u > -2.0 && v > -2.0 && u < grid.width + 1.0 && v < grid.height + 1.0)) continue;
         const long cu = std::lround(u), cv = std::lround(v);
         const double footprint = q.z() / camera.fx;
         const float lateral = static_cast<float>(options.same_spot_footprints * footprint);
         for (long dv = -1; dv <= 1 && !covered; ++dv)
           for (long du = -1; du <= 1 && !covered; ++du) {
-            const long uu = cu + du, vv = cv + dv;
-            if (uu < 0 || vv < 0 || uu >= grid.width || vv >= grid.height) continue;
-            const std::size_t s =
-                static_cast<std::size_t>(vv) * static_cast<std::size_t>(grid.width) + static_cast<std::size_t>(uu);
-            if (!grid.valid[s]) continue;
-            const Eigen::Vector3f d = grid.points[s] - q;
+            const std::ptrdiff_t s = grid.find(static_cast<int>(cu + du), static_cast<int>(cv + dv));
+            if (s < 0) continue;
+            const Eigen::Vector3f d = grid.points[static_cast<std::size_t>(s)] - q;
             // Along the normal: the same surface (an occluder in front is far off the plane);
             // across it: the same spot, not a neighbour on the far side of the window.
             covered = std::fabs(d.dot(m)) <= options.same_spot_mm && d.norm() <= lateral;

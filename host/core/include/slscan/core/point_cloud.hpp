@@ -3,6 +3,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 
@@ -21,6 +22,26 @@ struct OrganizedCloud {
   void resize(int w, int h);
   std::size_t size() const { return points.size(); }
   std::size_t count_valid() const;
+};
+
+// An organised cloud's valid slots only, in grid order: what a view keeps once it is cleaned.
+// After the turntable denoise ~2 % of a 5 MP grid is left, so this holds ~2.4 MB where the
+// grid took 85 MB a view (docs/scale.md "Memory a scan keeps").
+struct SparseOrganizedCloud {
+  int width = 0, height = 0;
+  std::vector<std::uint32_t> slots;  // v * width + u, ascending
+  std::vector<Eigen::Vector3f> points;
+  std::vector<float> quality;
+  std::vector<float> intensity;          // empty, or one per slot
+  std::vector<std::uint32_t> row_begin;  // height + 1: row v's samples are [row_begin[v], row_begin[v + 1])
+
+  // The valid slots of `cloud` (its intensity too when `with_intensity` and it has one).
+  static SparseOrganizedCloud of(const OrganizedCloud& cloud, bool with_intensity = true);
+  // The whole grid again: NaN points, zero quality and intensity where not valid.
+  OrganizedCloud to_organized() const;
+  // The sample at pixel (u, v) (in the grid), or -1 where that slot is not valid.
+  std::ptrdiff_t find(int u, int v) const;
+  std::size_t size() const { return slots.size(); }
 };
 
 // An unorganised cloud (fused, registered, cleaned). Optional channels are empty or size().

@@ -132,7 +132,8 @@ struct ViewReport {
 
 // What a view leaves for reports and pictures (camera frame of that view).
 struct ViewProducts {
-  OrganizedCloud cloud;  // fused, flying pixels and turntable removed; intensity only with keep_projector_clouds
+  // Fused, flying pixels and turntable removed, valid slots only; intensity only with keep_projector_clouds.
+  SparseOrganizedCloud cloud;
   std::vector<FusionSource> source;                // per pixel
   std::array<OrganizedCloud, 2> projector_clouds;  // only with keep_projector_clouds
   PointCloud points;                               // cloud's valid points with grid normals

@@ -40,11 +40,11 @@ struct OverlapSelection {
 
 // `points[i]`: view i's points in its camera frame with normals facing its camera (the
 // ScanReconstructor's per-view clouds); `grids[i]`: the same view's organised cloud (camera
-// frame, one slot per pixel) to look up what it measured where; `table_from_view[i]`: the
+// frame, its valid pixels) to look up what it measured where; `table_from_view[i]`: the
 // registered poses; `camera`: the camera model (the same camera for every view). Throws
 // std::invalid_argument on mismatched sizes, missing normals or bad options.
 OverlapSelection select_best_views(const std::vector<PointCloud>& points,
-                                   const std::vector<const OrganizedCloud*>& grids,
+                                   const std::vector<const SparseOrganizedCloud*>& grids,
                                    const std::vector<Eigen::Isometry3d>& table_from_view,
                                    const slproto::PinholeModel& camera, const OverlapSelectionOptions& options = {});
 
