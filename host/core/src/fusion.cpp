@@ -137,19 +137,17 @@ FlyingPixelResult remove_flying_pixels(OrganizedCloud cloud, const FlyingPixelOp
         const float* centre = zrow + u;
         // Directions are listed in opposite pairs (2 j, 2 j + 1). A point on a surface continues
         // in two independent directions; a line of mixed pixels along a straight edge is smooth
-        // only along the edge, i.e. in one opposite pair.
-        unsigned passing = 0;
-        for (unsigned d = 0; d < 8; ++d) {
+        // only along the edge, i.e. in one opposite pair. So a point stays when two pairs each
+        // have a direction it continues in; on a surface the first three directions tell.
+        const auto continues_along = [&](unsigned d) {
           const float z1 = centre[offsets[d]], z2 = centre[2 * offsets[d]];
           const float step = std::fabs(z1 - z2);
-          if (std::fabs(z - (2.0f * z1 - z2)) <= max_abs + relative * step) passing |= 1u << d;
-        }
-        bool continues = false;
-        for (unsigned pair = 0; pair < 4 && !continues; ++pair) {
-          const unsigned mask = 3u << (2 * pair);
-          continues = (passing & mask) != 0 && (passing & ~mask) != 0;
-        }
-        if (!continues) {
+          return std::fabs(z - (2.0f * z1 - z2)) <= max_abs + relative * step;
+        };
+        unsigned pairs = 0;
+        for (unsigned pair = 0; pair < 4 && pairs < 2; ++pair)
+          pairs += continues_along(2 * pair) || continues_along(2 * pair + 1) ? 1 : 0;
+        if (pairs < 2) {
           const std::size_t i = static_cast<std::size_t>(v) * static_cast<std::size_t>(w) + static_cast<std::size_t>(u);
           result.cloud.points[i] = Eigen::Vector3f(nan, nan, nan);
           result.cloud.quality[i] = 0.0f;

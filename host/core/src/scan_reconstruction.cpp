@@ -1,5 +1,6 @@
 #include "slscan/core/scan_reconstruction.hpp"
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 #include <tbb/task_group.h>
@@ -442,15 +443,18 @@ struct ScanReconstructor::Impl {
     FusionResult fused = fuse_left_right(left, right, fusion_options);
     ViewProducts products;
     products.exposure_member = std::move(view->exposure_member);
-    products.source.assign(left.size(), FusionSource::none);
-    for (std::size_t i = 0; i < left.size(); ++i) {
-      const bool l = left.valid[i] != 0, r = right.valid[i] != 0;
-      if (!l && !r) continue;
-      if (!fused.cloud.valid[i])
-        products.source[i] = FusionSource::rejected;
-      else
-        products.source[i] = l && r ? FusionSource::both : (l ? FusionSource::left : FusionSource::right);
-    }
+    products.source.resize(left.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, left.size(), std::size_t{1} << 16),
+                      [&](const tbb::blocked_range<std::size_t>& slots) {
+                        for (std::size_t i = slots.begin(); i < slots.end(); ++i) {
+                          const bool l = left.valid[i] != 0, r = right.valid[i] != 0;
+                          products.source[i] = !l && !r                ? FusionSource::none
+                                               : !fused.cloud.valid[i] ? FusionSource::rejected
+                                               : l && r                ? FusionSource::both
+                                               : l                     ? FusionSource::left
+                                                                       : FusionSource::right;
+                        }
+                      });
     const double fusion_ms = split();
     TurntableDenoiseResult<OrganizedCloud> denoised;
     if (options.denoise_turntable) {
