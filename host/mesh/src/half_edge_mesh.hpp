@@ -6,6 +6,7 @@
 #include <CGAL/Surface_mesh.h>
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 #include "slscan/core/mesh.hpp"
@@ -19,10 +20,12 @@ using VertexIndex = Surface::Vertex_index;
 using FaceIndex = Surface::Face_index;
 using HalfedgeIndex = Surface::Halfedge_index;
 
-// Our triangles into a half-edge mesh, in order (vertex i is VertexIndex(i)); the ones it cannot
-// hold (non-manifold edge or vertex) are counted and left out.
-// `triangle_of_face`, when given: the triangle each face came from.
+// Our triangles into a half-edge mesh, in order (vertex i is VertexIndex(i), every vertex added);
+// the ones it cannot hold (non-manifold edge or vertex) are counted and left out.
+// `triangle_of_face`, when given: the triangle each face came from. `only`, when given: the
+// triangles to add (non-zero entries), the others left out.
 Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected,
-                   std::vector<std::size_t>* triangle_of_face = nullptr);
+                   std::vector<std::size_t>* triangle_of_face = nullptr,
+                   const std::vector<std::uint8_t>* only = nullptr);
 
 }  // namespace slscan::mesh::detail

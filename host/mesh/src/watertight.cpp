@@ -34,16 +34,21 @@ namespace slscan::mesh {
 
 namespace detail {
 
-Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected, std::vector<std::size_t>* triangle_of_face) {
+Surface to_surface(const core::TriangleMesh& mesh, std::size_t& rejected, std::vector<std::size_t>* triangle_of_face,
+                   const std::vector<std::uint8_t>* only) {
+  const std::size_t faces =
+      only == nullptr
+          ? mesh.triangles.size()
+          : static_cast<std::size_t>(std::count_if(only->begin(), only->end(), [](std::uint8_t b) { return b != 0; }));
   Surface sm;
-  sm.reserve(static_cast<Surface::size_type>(mesh.vertices.size()),
-             static_cast<Surface::size_type>(3 * mesh.triangles.size() / 2 + 64),
-             static_cast<Surface::size_type>(mesh.triangles.size()));
+  sm.reserve(static_cast<Surface::size_type>(mesh.vertices.size()), static_cast<Surface::size_type>(3 * faces / 2 + 64),
+             static_cast<Surface::size_type>(faces));
   std::vector<VertexIndex> v(mesh.vertices.size());
   for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
     v[i] = sm.add_vertex(Point(mesh.vertices[i].x(), mesh.vertices[i].y(), mesh.vertices[i].z()));
   rejected = 0;
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    if (only != nullptr && (*only)[t] == 0) continue;
     const auto& tri = mesh.triangles[t];
     if (sm.add_face(v[tri[0]], v[tri[1]], v[tri[2]]) == Surface::null_face()) {
       ++rejected;
@@ -84,9 +89,70 @@ constexpr double unfaired_patch_density = 1.0;
 // (docs/mesh.md step 7). The 50 mm sphere's 1,000 mm^2 bottom (~73k: 35k faces) is refined.
 constexpr double max_refined_patch_triangles = 100000;
 
-std::vector<HalfedgeIndex> border_cycles(const Surface& sm) {
+// The part of a mesh the closure works on: the triangles within two rings of a border (or of an
+// edge the half-edge mesh cannot hold: used other than once each way, or degenerate). The rest,
+// "far" (~95 % of a scan's mesh), is only tested against the patches for crossings: building it
+// into CGAL's half-edge mesh and back was half of the closure's time (docs/mesh.md, "Closing
+// only near the holes"). Two rings keep every border vertex's whole fan in the half-edge mesh
+// (what refining and fairing a patch read), so the patches are the ones the whole mesh gives.
+struct Neighbourhood {
+  std::vector<std::uint8_t> near;      // per triangle
+  std::vector<std::uint8_t> cut;       // per vertex: of a near and a far triangle (its border in the
+                                       // half-edge mesh is the cut, not a hole)
+  std::vector<std::uint8_t> used_far;  // per vertex: of a far triangle
+};
+
+Neighbourhood neighbourhood_of_borders(const core::TriangleMesh& mesh) {
+  const std::size_t n = mesh.vertices.size();
+  // Outgoing edges per vertex (compressed rows): edge a->b is regular when it occurs once and
+  // b->a once.
+  std::vector<std::uint32_t> start(n + 1, 0);
+  for (const auto& t : mesh.triangles)
+    for (int k = 0; k < 3; ++k) ++start[t[static_cast<std::size_t>(k)] + 1];
+  for (std::size_t i = 0; i < n; ++i) start[i + 1] += start[i];
+  std::vector<std::uint32_t> target(start[n]);
+  std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+  for (const auto& t : mesh.triangles)
+    for (std::size_t k = 0; k < 3; ++k) target[fill[t[k]]++] = t[(k + 1) % 3];
+  const auto count = [&](std::uint32_t from, std::uint32_t to) {
+    return std::count(target.begin() + start[from], target.begin() + start[from + 1], to);
+  };
+  std::vector<std::uint8_t> level(n, 0);  // 2: on a border or irregular edge, 1: next to one
+  for (const auto& t : mesh.triangles) {
+    const bool degenerate = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
+    for (std::size_t k = 0; k < 3; ++k) {
+      const std::uint32_t a = t[k], b = t[(k + 1) % 3];
+      if (degenerate || count(a, b) != 1 || count(b, a) != 1) level[a] = level[b] = 2;
+    }
+  }
+  for (const auto& t : mesh.triangles)
+    if (level[t[0]] == 2 || level[t[1]] == 2 || level[t[2]] == 2)
+      for (const std::uint32_t v : t) level[v] = std::max<std::uint8_t>(level[v], 1);
+  Neighbourhood out;
+  out.near.resize(mesh.triangles.size());
+  out.cut.assign(n, 0);
+  out.used_far.assign(n, 0);
+  std::vector<std::uint8_t> used_near(n, 0);
+  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
+    const auto& t = mesh.triangles[i];
+    out.near[i] = level[t[0]] != 0 || level[t[1]] != 0 || level[t[2]] != 0;
+    for (const std::uint32_t v : t) (out.near[i] ? used_near : out.used_far)[v] = 1;
+  }
+  for (std::size_t v = 0; v < n; ++v) out.cut[v] = used_near[v] && out.used_far[v];
+  return out;
+}
+
+using IndexBox = CGAL::Box_intersection_d::Box_with_info_d<double, 3, std::size_t>;
+
+// The holes: border cycles other than the cut (whose vertices are all cut vertices, those of a
+// hole none: a hole's vertices have their whole fan near).
+std::vector<HalfedgeIndex> border_cycles(const Surface& sm, const std::vector<std::uint8_t>& cut) {
   std::vector<HalfedgeIndex> cycles;
   PMP::extract_boundary_cycles(sm, std::back_inserter(cycles));
+  std::erase_if(cycles, [&](HalfedgeIndex h) {
+    const VertexIndex v = sm.target(h);
+    return v.idx() < cut.size() && cut[v.idx()] != 0;
+  });
   return cycles;
 }
 
@@ -151,15 +217,40 @@ class BoxGrid {
   std::unordered_set<std::uint64_t> cells_;
 };
 
+// Self-intersecting pairs: within the half-edge mesh, and between a patch's face and a far
+// triangle; degenerate far triangles near a patch on their own (as CGAL reports a degenerate face).
+struct Crossings {
+  std::set<std::pair<FaceIndex, FaceIndex>> near;
+  std::set<std::pair<FaceIndex, std::size_t>> far;
+  std::set<std::size_t> degenerate_far;
+  std::size_t size() const { return near.size() + far.size() + degenerate_far.size(); }
+};
+
+// The far triangles the patches are tested against.
+struct FarTriangles {
+  const core::TriangleMesh& mesh;
+  const Neighbourhood& region;
+
+  CGAL::Bbox_3 box(std::size_t t) const {
+    const auto& tri = mesh.triangles[t];
+    const Eigen::Vector3f& a = mesh.vertices[tri[0]];
+    const Eigen::Vector3f lo = a.cwiseMin(mesh.vertices[tri[1]]).cwiseMin(mesh.vertices[tri[2]]);
+    const Eigen::Vector3f hi = a.cwiseMax(mesh.vertices[tri[1]]).cwiseMax(mesh.vertices[tri[2]]);
+    return {lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z()};
+  }
+};
+
 // The patch ids of faces in self-intersecting pairs (-1: an original face).
 // Self-intersecting pairs with a face of the patches numbered `since` or later in them: only
 // those patches and the faces whose bounding box overlaps one of their faces' are tested (the raw
 // mesh has had its own crossings cut, docs/mesh.md step 5, the earlier patches were tested when
 // they were made, and testing the whole mesh costs ~0.6 us a face on every closure). The pairs
-// found are added to `found`; original faces that a patch crosses to `crossed` (face indices).
+// found are added to `found`; original faces that a patch crosses to `crossed` (face indices),
+// far triangles to `crossed_far` (triangle indices).
 std::set<int> intersecting_patches(const Surface& sm, const Surface::Property_map<FaceIndex, int>& patch, int since,
-                                   std::set<std::pair<FaceIndex, FaceIndex>>& found_pairs,
-                                   std::vector<std::size_t>* crossed = nullptr) {
+                                   const FarTriangles& far, Crossings& found,
+                                   std::vector<std::size_t>* crossed = nullptr,
+                                   std::vector<std::size_t>* crossed_far = nullptr) {
   using Box = CGAL::Box_intersection_d::Box_with_info_d<double, 3, FaceIndex>;
   const auto box_of = [&](FaceIndex f) {
     CGAL::Bbox_3 b;
@@ -189,14 +280,50 @@ std::set<int> intersecting_patches(const Surface& sm, const Surface::Property_ma
   std::vector<FaceIndex> range;
   for (const FaceIndex f : sm.faces())
     if (patch[f] >= since || near[f.idx()]) range.push_back(f);
-  std::vector<std::pair<FaceIndex, FaceIndex>> found;
-  PMP::self_intersections(range, sm, std::back_inserter(found));
+  std::vector<std::pair<FaceIndex, FaceIndex>> pairs;
+  PMP::self_intersections(range, sm, std::back_inserter(pairs));
   std::set<int> ids;
-  for (const auto& [a, b] : found) {
-    found_pairs.insert(std::minmax(a, b));
+  for (const auto& [a, b] : pairs) {
+    found.near.insert(std::minmax(a, b));
     ids.insert(patch[a]);
     ids.insert(patch[b]);
     if (crossed != nullptr && (patch[a] < 0) != (patch[b] < 0)) crossed->push_back(patch[a] < 0 ? a.idx() : b.idx());
+  }
+
+  // The far triangles: they share no vertex with a patch (a hole's vertices have all their
+  // triangles near), so two of them cross exactly when the triangles intersect.
+  std::vector<IndexBox> patch_index_boxes, far_near;
+  for (const Box& b : patch_boxes) patch_index_boxes.emplace_back(b.bbox(), b.info().idx());
+  for (std::size_t t = 0; t < far.mesh.triangles.size(); ++t) {
+    if (far.region.near[t]) continue;
+    const CGAL::Bbox_3 box = far.box(t);
+    if (CGAL::do_overlap(box, reach) && near_patches.touches(box)) far_near.emplace_back(box, t);
+  }
+  std::vector<std::pair<std::size_t, std::size_t>> candidates;  // (patch face, far triangle)
+  CGAL::box_intersection_d(patch_index_boxes.begin(), patch_index_boxes.end(), far_near.begin(), far_near.end(),
+                           [&](const IndexBox& a, const IndexBox& b) { candidates.emplace_back(a.info(), b.info()); });
+  std::sort(candidates.begin(), candidates.end());
+  const auto point = [&](std::uint32_t v) {
+    const Eigen::Vector3f& p = far.mesh.vertices[v];
+    return Point(p.x(), p.y(), p.z());
+  };
+  for (const auto& [face_index, t] : candidates) {
+    const auto& tri = far.mesh.triangles[t];
+    const Kernel::Triangle_3 other(point(tri[0]), point(tri[1]), point(tri[2]));
+    if (other.is_degenerate()) {
+      found.degenerate_far.insert(t);
+      ids.insert(-1);
+      continue;
+    }
+    const FaceIndex f(static_cast<Surface::size_type>(face_index));
+    const HalfedgeIndex h = sm.halfedge(f);
+    const Kernel::Triangle_3 mine(sm.point(sm.target(h)), sm.point(sm.target(sm.next(h))),
+                                  sm.point(sm.target(sm.prev(h))));
+    if (mine.is_degenerate() || !CGAL::do_intersect(mine, other)) continue;
+    found.far.insert({f, t});
+    ids.insert(patch[f]);
+    ids.insert(-1);
+    if (crossed_far != nullptr) crossed_far->push_back(t);
   }
   return ids;
 }
@@ -294,7 +421,11 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   // Face index -> our triangle (the half-edge mesh refuses non-manifold triangles).
   std::vector<std::size_t> triangle_of_face;
   if (crossed != nullptr) crossed->clear();
-  Surface sm = to_surface(mesh, rejected, crossed != nullptr ? &triangle_of_face : nullptr);
+  std::vector<std::size_t> crossed_far;
+  const Neighbourhood region = neighbourhood_of_borders(mesh);
+  const FarTriangles far{mesh, region};
+  Surface sm = to_surface(mesh, rejected, &triangle_of_face, &region.near);
+  const auto original_faces = static_cast<Surface::size_type>(sm.number_of_faces());
   stats.rejected_triangles = rejected;
   auto [normal, created] =
       sm.add_property_map<VertexIndex, Eigen::Vector3f>("v:slscan_normal", Eigen::Vector3f::Zero());
@@ -311,24 +442,20 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   auto patch = sm.add_property_map<FaceIndex, int>("f:slscan_patch", -1).first;
   // Faces already filled by an earlier closure (mesh.filled): kept as they are, still flagged.
   auto earlier = sm.add_property_map<FaceIndex, bool>("f:slscan_earlier", false).first;
-  if (mesh.filled.size() == mesh.triangles.size()) {
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
-      const auto& tri = mesh.triangles[t];
-      const HalfedgeIndex h = sm.halfedge(VertexIndex(tri[0]), VertexIndex(tri[1]));
-      if (h == Surface::null_halfedge() || sm.face(h) == Surface::null_face()) continue;
-      earlier[sm.face(h)] = mesh.filled[t] != 0;
-    }
-  }
+  const bool with_filled = mesh.filled.size() == mesh.triangles.size();
+  if (with_filled)
+    for (std::size_t f = 0; f < triangle_of_face.size(); ++f)
+      earlier[FaceIndex(static_cast<Surface::size_type>(f))] = mesh.filled[triangle_of_face[f]] != 0;
   auto original = sm.add_property_map<VertexIndex, bool>("v:slscan_original", false).first;
   for (const VertexIndex v : sm.vertices()) original[v] = true;
 
   // First pass: every border cycle, faired when small, refined when large.
   int next_patch = 0;
-  const auto cycles = border_cycles(sm);
+  const auto cycles = border_cycles(sm, region.cut);
   stats.holes = cycles.size();
   stats.filled_triangles = 0;
   stats.holes_faired = 0;
-  std::set<std::pair<FaceIndex, FaceIndex>> prechecked_pairs;  // of patches removed at once
+  Crossings prechecked;  // of patches removed at once
   for (const HalfedgeIndex h : cycles) {
     core::interruption_point(interrupt);
     std::vector<FaceIndex> faces;
@@ -345,7 +472,7 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
       // one that crossed would have been.
       PMP::triangulate_hole(sm, h, std::back_inserter(faces), fill_options);
       for (const FaceIndex f : faces) patch[f] = next_patch;
-      if (intersecting_patches(sm, patch, next_patch, prechecked_pairs, crossed).count(next_patch) != 0) {
+      if (intersecting_patches(sm, patch, next_patch, far, prechecked, crossed, &crossed_far).count(next_patch) != 0) {
         remove_patches(sm, patch, {next_patch});
         ++stats.holes_crossing_unrefined;
         ++next_patch;
@@ -380,22 +507,22 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   // Fills that made the mesh self-intersect: undone, retried once as plain patches, undone again
   // if they still intersect (the hole stays open).
   // Every crossing pair found; those of removed faces are dropped as the patches go.
-  std::set<std::pair<FaceIndex, FaceIndex>> pairs;
+  Crossings pairs;
   const auto forget_removed = [&] {
-    for (auto it = pairs.begin(); it != pairs.end();)
-      it = sm.is_removed(it->first) || sm.is_removed(it->second) ? pairs.erase(it) : std::next(it);
+    std::erase_if(pairs.near, [&](const auto& p) { return sm.is_removed(p.first) || sm.is_removed(p.second); });
+    std::erase_if(pairs.far, [&](const auto& p) { return sm.is_removed(p.first); });
   };
   int checked = 0;  // patches below this id have been tested
   for (int attempt = 0; attempt < 2; ++attempt) {
     core::interruption_point(interrupt);
-    std::set<int> bad = intersecting_patches(sm, patch, checked, pairs, crossed);
+    std::set<int> bad = intersecting_patches(sm, patch, checked, far, pairs, crossed, &crossed_far);
     checked = next_patch;
     bad.erase(-1);
     if (bad.empty()) break;
     remove_patches(sm, patch, bad);
     forget_removed();
     if (attempt == 1) break;
-    for (const HalfedgeIndex h : border_cycles(sm)) {
+    for (const HalfedgeIndex h : border_cycles(sm, region.cut)) {
       std::vector<FaceIndex> faces;
       PMP::triangulate_hole(sm, h, std::back_inserter(faces), hole_options(sm, h));
       for (const FaceIndex f : faces) patch[f] = next_patch;
@@ -405,7 +532,7 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   // Last resorts for the holes still open: bridged to the nearest other open border when that
   // is close (nearer than a quarter of either's diameter), else fanned; undone if they cross.
   for (int resort = 0; resort < 2; ++resort) {
-    const auto open = border_cycles(sm);
+    const auto open = border_cycles(sm, region.cut);
     if (open.empty()) break;
     std::set<int> tried;
     std::vector<std::uint8_t> used(open.size(), 0);
@@ -439,7 +566,7 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
       for (const FaceIndex f : faces) patch[f] = next_patch;
       tried.insert(next_patch++);
     }
-    std::set<int> bad = intersecting_patches(sm, patch, checked, pairs, crossed);
+    std::set<int> bad = intersecting_patches(sm, patch, checked, far, pairs, crossed, &crossed_far);
     checked = next_patch;
     std::set<int> undo;
     std::set_intersection(bad.begin(), bad.end(), tried.begin(), tried.end(), std::inserter(undo, undo.end()));
@@ -449,18 +576,20 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
   stats.self_intersections = pairs.size();
   if (crossed != nullptr) {
     for (auto& f : *crossed) f = triangle_of_face[f];
+    crossed->insert(crossed->end(), crossed_far.begin(), crossed_far.end());
     std::sort(crossed->begin(), crossed->end());
     crossed->erase(std::unique(crossed->begin(), crossed->end()), crossed->end());
   }
-  stats.holes_left_open = border_cycles(sm).size();
+  stats.holes_left_open = border_cycles(sm, region.cut).size();
   stats.holes_filled = stats.holes >= stats.holes_left_open ? stats.holes - stats.holes_left_open : 0;
 
   // Back to our arrays: vertices in the half-edge mesh's order (the original ones first, in
-  // their order), normals kept for the original vertices and computed for the patches'.
+  // their order, the patches' after them), normals kept for the original vertices and computed
+  // for the patches'; triangles in their order, the far ones where they were, the patches' last.
   core::TriangleMesh out;
   std::vector<std::uint32_t> index(sm.number_of_vertices() + sm.number_of_removed_vertices(), UINT32_MAX);
   for (const VertexIndex v : sm.vertices()) {
-    if (sm.is_isolated(v)) continue;
+    if (sm.is_isolated(v) && !(v.idx() < region.used_far.size() && region.used_far[v.idx()])) continue;
     index[v.idx()] = static_cast<std::uint32_t>(out.vertices.size());
     const Point& p = sm.point(v);
     out.vertices.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()));
@@ -472,7 +601,7 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
       out.normals.emplace_back(static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z()));
     }
   }
-  for (const FaceIndex f : sm.faces()) {
+  const auto add_face = [&](FaceIndex f) {
     std::array<std::uint32_t, 3> t{};
     int k = 0;
     for (const VertexIndex v : CGAL::vertices_around_face(sm.halfedge(f), sm))
@@ -481,7 +610,22 @@ void close_holes(core::TriangleMesh& mesh, const core::MeshOptions& options, cor
     const bool filled = patch[f] >= 0 || earlier[f];
     out.filled.push_back(filled ? 1 : 0);
     if (filled) ++stats.filled_triangles;
+  };
+  std::size_t next_face = 0;  // of the original faces, in their triangles' order
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+    if (region.near[t]) {
+      if (next_face < triangle_of_face.size() && triangle_of_face[next_face] == t)
+        add_face(FaceIndex(static_cast<Surface::size_type>(next_face++)));
+      continue;
+    }
+    const auto& tri = mesh.triangles[t];
+    out.triangles.push_back({index[tri[0]], index[tri[1]], index[tri[2]]});
+    const bool filled = with_filled && mesh.filled[t] != 0;
+    out.filled.push_back(filled ? 1 : 0);
+    if (filled) ++stats.filled_triangles;
   }
+  for (const FaceIndex f : sm.faces())
+    if (f.idx() >= original_faces) add_face(f);
   mesh = std::move(out);
 }
 
