@@ -340,8 +340,11 @@ double median_spacing(const std::vector<Eigen::Vector3f>& points, const Tree& tr
 // not a 2-manifold, and a border cycle through it cannot be filled (CGAL's hole filling needs
 // a simple cycle: the small-rig ball bar's last open hole). At such a vertex the largest fan
 // (ties: the one with the lowest triangle) is kept and the others dropped, until none is left.
+// After the first pass only the vertices of dropped triangles are looked at again: any other
+// vertex has the triangles it had, which formed one fan.
 void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::vector<std::uint8_t>& flags,
                     std::size_t vertex_count) {
+  std::vector<std::uint8_t> look(vertex_count, 1);
   for (;;) {
     std::vector<std::uint32_t> start(vertex_count + 1, 0);
     for (const auto& t : triangles)
@@ -355,7 +358,7 @@ void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::v
     std::vector<std::uint32_t> fan, size;
     for (std::size_t v = 0; v < vertex_count; ++v) {
       const std::uint32_t begin = start[v], end = start[v + 1];
-      if (end - begin < 2) continue;
+      if (!look[v] || end - begin < 2) continue;
       // Fans: incident triangles joined when they share an edge through v (a second vertex).
       const std::size_t n = end - begin;
       fan.resize(n);
@@ -389,9 +392,12 @@ void remove_pinches(std::vector<std::array<std::uint32_t, 3>>& triangles, std::v
         }
     }
     if (!dropped) return;
+    std::fill(look.begin(), look.end(), 0);
     std::size_t out = 0;
     for (std::size_t i = 0; i < triangles.size(); ++i)
-      if (!drop[i]) {
+      if (drop[i]) {
+        for (const std::uint32_t v : triangles[i]) look[v] = 1;
+      } else {
         if (!flags.empty()) flags[out] = flags[i];
         triangles[out++] = triangles[i];
       }
