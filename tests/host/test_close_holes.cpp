@@ -72,14 +72,23 @@ TriangleMesh box_with_opening() {
   return mesh;
 }
 
+struct Closure {
+  slscan::core::MeshStats stats;
+  std::vector<std::size_t> crossed;  // triangles of the mesh given that a patch crossed
+};
+
+Closure close(TriangleMesh& mesh) {
+  Closure closure;
+  slscan::core::MeshOptions options;
+  options.fill_holes_mm = 10;
+  slscan::mesh::close_holes(mesh, options, closure.stats, {}, &closure.crossed);
+  return closure;
+}
+
 TEST(CloseHoles, OpeningIsClosedAndEveryOtherTriangleComesBackInPlace) {
   TriangleMesh mesh = box_with_opening();
   const TriangleMesh given = mesh;
-  slscan::core::MeshStats stats;
-  slscan::core::MeshOptions options;
-  options.fill_holes_mm = 10;
-  std::vector<std::size_t> crossed;
-  slscan::mesh::close_holes(mesh, options, stats, {}, &crossed);
+  const auto [stats, crossed] = close(mesh);
   // One hole: the edge of the part built into the half-edge mesh is not one.
   EXPECT_EQ(stats.holes, 1u);
   EXPECT_EQ(stats.holes_left_open, 0u);
@@ -107,11 +116,7 @@ TEST(CloseHoles, APatchCrossingASurfaceFarFromEveryBorderIsUndone) {
   const std::size_t box_triangles = mesh.triangles.size();
   add_box(mesh, {9.5f, 9.5f, 15}, {10.5f, 10.5f, 25}, 4);
   const TriangleMesh given = mesh;
-  slscan::core::MeshStats stats;
-  slscan::core::MeshOptions options;
-  options.fill_holes_mm = 10;
-  std::vector<std::size_t> crossed;
-  slscan::mesh::close_holes(mesh, options, stats, {}, &crossed);
+  const auto [stats, crossed] = close(mesh);
   EXPECT_EQ(stats.holes, 1u);
   EXPECT_EQ(stats.holes_left_open, 1u);
   EXPECT_EQ(stats.self_intersections, 0u);
