@@ -9,6 +9,7 @@
 #if __has_include("slrig/rig.hpp")
 #include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdlib>
@@ -28,7 +29,8 @@ struct Frames {
   slproto::RigCalibration calibration;
   slproto::PatternPlan plan{slproto::PatternPlanConfig{}};
   int width = 0, height = 0;
-  std::array<std::vector<std::vector<std::uint8_t>>, 2> by_side;  // [projector][pattern]
+  std::array<std::vector<std::vector<std::uint8_t>>, 2> by_side;    // [projector][pattern]
+  std::array<std::vector<std::vector<std::uint8_t>>, 2> half_dark;  // the same, its top half black
 };
 
 const Frames& frames() {
@@ -45,7 +47,10 @@ const Frames& frames() {
       for (std::size_t p = 0; p < f.plan.size(); ++p) {
         std::vector<std::uint8_t> frame(renderer.frame_bytes());
         renderer.render(side == 0 ? ProjectorSide::left : ProjectorSide::right, p, frame);
+        std::vector<std::uint8_t> half = frame;
+        std::fill_n(half.begin(), half.size() / 2, std::uint8_t{0});
         f.by_side[side].push_back(std::move(frame));
+        f.half_dark[side].push_back(std::move(half));
       }
     return f;
   }();
@@ -55,6 +60,7 @@ const Frames& frames() {
 struct Frame {
   int view = 0, projector = 0;
   std::size_t pattern = 0;
+  bool half_dark = false;  // from Frames::half_dark
 };
 
 // Each view's projector-views one after the other, as the board sends them.
@@ -92,8 +98,9 @@ std::vector<std::vector<Eigen::Vector3f>> reconstruct(const std::vector<Frame>& 
     info.pattern_index = frame.pattern;
     info.bytes_per_pixel = 1;
     info.stride_bytes = static_cast<std::size_t>(f.width);
-    reconstructor.add_frame(
-        info, std::as_bytes(std::span(f.by_side[static_cast<std::size_t>(frame.projector)][frame.pattern])));
+    const auto& source = frame.half_dark ? f.half_dark : f.by_side;
+    reconstructor.add_frame(info,
+                            std::as_bytes(std::span(source[static_cast<std::size_t>(frame.projector)][frame.pattern])));
   }
   const slscan::core::ScanResult result = reconstructor.finish(stop);
   std::vector<std::vector<Eigen::Vector3f>> points;
@@ -140,6 +147,29 @@ TEST(ScanScheduling, InterleavedProjectorViewsBeyondTheBoundComplete) {
     });
     EXPECT_TRUE(points == reference) << threads << " thread(s)";
   }
+}
+
+// A view's grids, once it is fused, are passed to the next view's triangulation and fusion
+// (spare_grids in scan_reconstruction.cpp): a view reconstructed after another gives the points
+// it gives alone, with nothing of the first left in its grids: the second view is the first with
+// the top half of its frames black, where the first view's points would show. One decoder, so
+// that the first view is fused before the second is triangulated.
+TEST(ScanScheduling, AViewAfterAnotherGivesThePointsItGivesAlone) {
+  std::vector<Frame> alone = in_order(1);
+  for (Frame& frame : alone) frame.half_dark = true;
+  std::vector<Frame> after = in_order(1);
+  for (Frame frame : alone) {
+    frame.view = 1;
+    after.push_back(frame);
+  }
+  const auto single = within_deadline([&] { return reconstruct(alone, 1); });
+  const auto both = within_deadline([&] { return reconstruct(after, 1); });
+  ASSERT_EQ(single.size(), 1u);
+  ASSERT_EQ(both.size(), 2u);
+  EXPECT_GT(single[0].size(), 1000u);
+  EXPECT_LT(single[0].size() + 100, both[0].size()) << "half of each frame dark: fewer points";
+  EXPECT_TRUE(both[1] == single[0]) << both[1].size() << " points after the first view, " << single[0].size()
+                                    << " alone";
 }
 
 // Ctrl-C after the last frame (issue 17): finish() honours the stop flag at its next stage

@@ -8,6 +8,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "slproto/number_text.hpp"
@@ -39,7 +40,8 @@ void FlyingPixelOptions::check() const {
     throw std::invalid_argument("flying pixel options: relative must be >= 0 and finite");
 }
 
-FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& right, const FusionOptions& options) {
+FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& right, const FusionOptions& options,
+                             OrganizedCloud storage) {
   options.check();
   check_cloud(left, "fusion (left)");
   check_cloud(right, "fusion (right)");
@@ -48,6 +50,7 @@ FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& r
                                 std::to_string(left.height) + ", right is " + std::to_string(right.width) + " x " +
                                 std::to_string(right.height));
   FusionResult result;
+  result.cloud = std::move(storage);
   result.cloud.resize(left.width, left.height);
   // The albedo is fused when both sides carry it (a missing projector's empty grid does).
   const std::size_t size = left.points.size();

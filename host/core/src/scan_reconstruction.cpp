@@ -205,6 +205,12 @@ struct ScanReconstructor::Impl {
   // each job before it decodes (ReconstructionInterrupted, rethrown by finish()).
   std::atomic<const std::atomic<bool>*> stop{nullptr};
   std::map<int, ViewState> views;
+  // Grids the views are done with (the projector clouds once fused, the fused grid once listed
+  // as slots), handed to the next projector-view's triangulation and the next view's fusion,
+  // which write every slot: at full resolution each is 85-105 MB that the kernel would otherwise
+  // zero again (docs/scale.md "Grids passed on"). Emptied when the views are done.
+  std::vector<OrganizedCloud> spare_grids;
+  static constexpr std::size_t kMaxSpareGrids = 3;  // what one view gives back and takes
   std::size_t completed = 0;
   std::vector<int> incomplete;
   tbb::task_group workers;
@@ -359,7 +365,9 @@ struct ScanReconstructor::Impl {
       DecodedView decoded = std::move(decoded_in);
       report.decode = decoded.counts;
       const auto start = Clock::now();
-      triangulated = triangulators[static_cast<std::size_t>(projector)]->triangulate(decoded);
+      triangulated.cloud = take_grid();
+      triangulated.counts =
+          triangulators[static_cast<std::size_t>(projector)]->triangulate(decoded, triangulated.cloud);
       report.triangulate_ms = ms_since(start);
       report.triangulate = triangulated.counts;
       report.checks = std::move(decoded.checks);
@@ -386,6 +394,21 @@ struct ScanReconstructor::Impl {
       if (both_done) view.fused = true;  // claimed by this worker
     }
     if (both_done) fuse_view(view_index);
+  }
+
+  OrganizedCloud take_grid() {
+    std::lock_guard lock(mutex);
+    if (spare_grids.empty()) return {};
+    OrganizedCloud grid = std::move(spare_grids.back());
+    spare_grids.pop_back();
+    return grid;
+  }
+
+  void give_back(OrganizedCloud&& grid) {
+    OrganizedCloud spare = std::move(grid);
+    if (spare.points.capacity() == 0) return;
+    std::lock_guard lock(mutex);
+    if (spare_grids.size() < kMaxSpareGrids) spare_grids.push_back(std::move(spare));
   }
 
   // Fuses a view whose projector clouds are final; the caller has claimed it (fused = true).
@@ -440,7 +463,7 @@ struct ScanReconstructor::Impl {
     const double flying_ms = split();
     const OrganizedCloud& left = clouds[0];
     const OrganizedCloud& right = clouds[1];
-    FusionResult fused = fuse_left_right(left, right, fusion_options);
+    FusionResult fused = fuse_left_right(left, right, fusion_options, take_grid());
     ViewProducts products;
     products.exposure_member = std::move(view->exposure_member);
     products.source.resize(left.size());
@@ -455,6 +478,8 @@ struct ScanReconstructor::Impl {
                                                                        : FusionSource::right;
                         }
                       });
+    if (!options.keep_projector_clouds)
+      for (OrganizedCloud& cloud : clouds) give_back(std::move(cloud));
     const double fusion_ms = split();
     TurntableDenoiseResult<OrganizedCloud> denoised;
     if (options.denoise_turntable) {
@@ -481,7 +506,7 @@ struct ScanReconstructor::Impl {
     // The grid is kept for the pictures and the overlap selection, its valid slots only; the
     // albedo is in products.points, so it stays in the grid only for diagnostics.
     products.cloud = SparseOrganizedCloud::of(denoised.cloud, options.keep_projector_clouds);
-    denoised.cloud = {};  // the whole grid (85 MB a view at full resolution) goes now
+    give_back(std::move(denoised.cloud));  // the whole grid (85-105 MB a view at full resolution)
 
     std::lock_guard lock(mutex);
     view->report.flying_max_abs_mm = flying_options.max_abs_mm;
@@ -731,6 +756,8 @@ ScanResult ScanReconstructor::final_stages(const std::function<void(const char*)
     s.fuse_view(index);
   }
   result.stage_ms["fuse_remaining"] = ms_since(start);
+  s.spare_grids.clear();  // registration and merging hold every view's cloud at once
+  s.spare_grids.shrink_to_fit();
 
   std::vector<PointCloud> clouds;
   std::vector<double> angles;

@@ -28,9 +28,11 @@ struct FusionResult {
   FusionCounts counts;
 };
 
-// Both clouds must have the same size (throws std::invalid_argument otherwise).
-FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& right,
-                             const FusionOptions& options = {});
+// Both clouds must have the same size (throws std::invalid_argument otherwise). The result is
+// written into `storage`'s buffers (every slot of them): a grid of an earlier view passed here
+// is reused instead of fresh memory.
+FusionResult fuse_left_right(const OrganizedCloud& left, const OrganizedCloud& right, const FusionOptions& options = {},
+                             OrganizedCloud storage = {});
 
 // Flying pixels (mixed foreground/background at depth edges, shadow borders, isolated noise):
 // a point is kept only if, in at least two independent (not opposite) of the 8 grid
